@@ -1,0 +1,36 @@
+# quad_il entry points. Every target does the (idempotent) set-up and build it needs first.
+#   make demo    the main job end to end on the default configuration
+#   make test    the whole test suite (lint, gtest, rostest, pytest) with a summary line
+#   make build   idempotent set-up (apt, .venv, pip) + catkin build
+#   make shell   a shell with the workspace sourced
+#   make bench-<component>   BENCH lines of one component (sim, tracker, planner, collector, train, inference, scale)
+#   make lint / make format
+SHELL := /bin/bash
+.PHONY: setup build test demo shell lint format clean
+
+setup:
+	@bash scripts/setup.sh
+
+build:
+	@bash scripts/build.sh
+
+test: build
+	@bash scripts/run_tests.sh
+
+demo: build
+	@bash scripts/demo.sh
+
+bench-%: build
+	@bash scripts/bench.sh $*
+
+shell: build
+	@bash --rcfile <(echo 'source ~/.bashrc 2>/dev/null; source scripts/env.sh; PS1="(quad_il) $$PS1"') -i
+
+lint: setup
+	@bash scripts/lint.sh check
+
+format: setup
+	@bash scripts/lint.sh fix
+
+clean:
+	rm -rf build devel install build.log

@@ -1,0 +1,17 @@
+#!/usr/bin/env bash
+# Formatting and lint: ruff (Python) and clang-format (C++), check only. `make format` applies both.
+set -euo pipefail
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+cd "$ROOT"
+mode=${1:-check}
+mapfile -t cxx < <(git ls-files -co --exclude-standard -- 'src/*.cpp' 'src/*.h' 'src/*.hpp' | sort -u)
+py_dirs=(src tests training_only)
+if [ "$mode" = fix ]; then
+  .venv/bin/ruff format "${py_dirs[@]}"
+  .venv/bin/ruff check --fix "${py_dirs[@]}"
+  [ ${#cxx[@]} -eq 0 ] || clang-format -i "${cxx[@]}"
+else
+  .venv/bin/ruff check "${py_dirs[@]}"
+  .venv/bin/ruff format --check "${py_dirs[@]}"
+  [ ${#cxx[@]} -eq 0 ] || clang-format --dry-run --Werror "${cxx[@]}"
+fi

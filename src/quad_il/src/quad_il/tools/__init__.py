@@ -1,0 +1,1 @@
+"""Command-line tooling shared by the Makefile targets (test summary, benchmark output checks)."""
