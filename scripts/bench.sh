@@ -8,7 +8,9 @@ cd "$ROOT"
 component=${1:?usage: bench.sh <component>}
 script="scripts/bench/$component.sh"
 if [ ! -f "$script" ]; then
-  avail=$(ls scripts/bench/*.sh 2>/dev/null | xargs -rn1 basename | sed 's/\.sh$//' | tr '\n' ' ')
+  shopt -s nullglob
+  avail=""
+  for f in scripts/bench/*.sh; do avail+="$(basename "$f" .sh) "; done
   echo "bench: no benchmark for component '$component' (available: ${avail:-none yet})" >&2
   exit 2
 fi

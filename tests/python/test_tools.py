@@ -69,3 +69,15 @@ def test_summary_counts_pass_fail_skip(tmp_path, capsys):
 
 def test_summary_with_no_results_is_an_error(tmp_path):
     assert summary_main([str(tmp_path)]) == 2
+
+
+def test_bench_entry_point_names_unknown_component():
+    import subprocess
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    res = subprocess.run(
+        ["bash", str(root / "scripts" / "bench.sh"), "no_such_component"], capture_output=True, text=True
+    )
+    assert res.returncode == 2
+    assert "no benchmark for component 'no_such_component'" in res.stderr
