@@ -5,7 +5,8 @@ ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$ROOT"
 mode=${1:-check}
 mapfile -t cxx < <(git ls-files -co --exclude-standard -- 'src/*.cpp' 'src/*.h' 'src/*.hpp' | sort -u)
-py_dirs=(src tests training_only)
+py_dirs=()
+for d in src tests training_only; do [ -d "$d" ] && py_dirs+=("$d"); done
 if [ "$mode" = fix ]; then
   .venv/bin/ruff format "${py_dirs[@]}"
   .venv/bin/ruff check --fix "${py_dirs[@]}"
