@@ -1,0 +1,1 @@
+"""Episode management for demonstration collection (ROS-free; the rospy node is nodes/episode_manager.py)."""

@@ -1,0 +1,191 @@
+"""Start/goal sampling, stop conditions and the episode log of a collection run.
+
+Everything here is ROS-free and deterministic given the seed, so the same seeds give the same episodes.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+
+class StartGoalConfig(BaseModel):
+    """Where episodes start and end: inside the world's flying area, a margin from its edges."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    bounds_min_xy_m: tuple[float, float] = (-20.0, -20.0)
+    bounds_max_xy_m: tuple[float, float] = (20.0, 20.0)
+    margin_m: float = Field(2.0, ge=0.0)
+    min_distance_m: float = Field(20.0, gt=0.0)
+    max_distance_m: float = Field(30.0, gt=0.0)
+    altitude_min_m: float = Field(1.0, gt=0.0)
+    altitude_max_m: float = Field(2.0, gt=0.0)
+    max_tries: int = Field(1000, ge=1)
+
+    @model_validator(mode="after")
+    def _check_ranges(self) -> StartGoalConfig:
+        lo = np.asarray(self.bounds_min_xy_m) + self.margin_m
+        hi = np.asarray(self.bounds_max_xy_m) - self.margin_m
+        if np.any(lo >= hi):
+            raise ValueError(
+                f"start_goal: bounds {self.bounds_min_xy_m}..{self.bounds_max_xy_m} leave no room "
+                f"after margin_m={self.margin_m}"
+            )
+        if self.min_distance_m > self.max_distance_m:
+            raise ValueError(
+                f"start_goal: min_distance_m={self.min_distance_m} > max_distance_m={self.max_distance_m}"
+            )
+        if self.altitude_min_m > self.altitude_max_m:
+            raise ValueError(
+                f"start_goal: altitude_min_m={self.altitude_min_m} > altitude_max_m={self.altitude_max_m}"
+            )
+        if self.min_distance_m > float(np.linalg.norm(hi - lo)):
+            raise ValueError(f"start_goal: min_distance_m={self.min_distance_m} does not fit in the area")
+        return self
+
+
+class CollectConfig(BaseModel):
+    """A collection run (config/collect.yaml); launch arguments override single keys."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    output_dir: str = "data/demo_dataset"
+    # World seeds of the episodes, used in order and cycled; an empty list means first_seed, first_seed+1, ...
+    seeds: list[int] = Field(default_factory=list)
+    first_seed: int = Field(0, ge=0)
+    episodes: int = Field(10, ge=1)
+    # Stop once this many samples (expert plans) were recorded; 0 = no limit.
+    max_samples: int = Field(0, ge=0)
+    # Sim-time limit of one episode; a slower episode ends with outcome "timeout".
+    episode_timeout_s: float = Field(60.0, gt=0.0)
+    start_goal: StartGoalConfig = StartGoalConfig()
+
+
+def load_collect_config(path: str | os.PathLike, overrides: dict | None = None) -> CollectConfig:
+    """Load and validate a collection config; errors name the offending key."""
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"collection config not found: {p}")
+    data = yaml.safe_load(p.read_text()) or {}
+    if not isinstance(data, dict):
+        raise ValueError(f"{p}: top level must be a mapping")
+    data.update({k: v for k, v in (overrides or {}).items() if v is not None})
+    try:
+        return CollectConfig.model_validate(data)
+    except ValidationError as exc:
+        msgs = [f"{'.'.join(str(x) for x in e['loc'])}: {e['msg']}" for e in exc.errors()]
+        raise ValueError(f"{p}: invalid collection config: " + "; ".join(msgs)) from None
+
+
+@dataclass(frozen=True)
+class EpisodeSpec:
+    index: int
+    seed: int
+    start_world: tuple[float, float, float]
+    start_yaw_rad: float
+    goal_world: tuple[float, float, float]
+
+
+def episode_seed(cfg: CollectConfig, index: int) -> int:
+    return cfg.seeds[index % len(cfg.seeds)] if cfg.seeds else cfg.first_seed + index
+
+
+def sample_start_goal(cfg: StartGoalConfig, rng: np.random.Generator) -> tuple[np.ndarray, float, np.ndarray]:
+    """A start and goal inside the area less the margin, [min, max] apart; the start faces the goal."""
+    lo = np.asarray(cfg.bounds_min_xy_m) + cfg.margin_m
+    hi = np.asarray(cfg.bounds_max_xy_m) - cfg.margin_m
+    for _ in range(cfg.max_tries):
+        s = rng.uniform(lo, hi)
+        heading = rng.uniform(-math.pi, math.pi)
+        dist = rng.uniform(cfg.min_distance_m, cfg.max_distance_m)
+        g = s + dist * np.array([math.cos(heading), math.sin(heading)])
+        if np.all(g >= lo) and np.all(g <= hi):
+            zs, zg = rng.uniform(cfg.altitude_min_m, cfg.altitude_max_m, size=2)
+            return np.array([s[0], s[1], zs]), heading, np.array([g[0], g[1], zg])
+    raise RuntimeError(
+        f"could not place a start/goal pair {cfg.min_distance_m}-{cfg.max_distance_m} m apart "
+        f"in {cfg.max_tries} tries"
+    )
+
+
+def plan_episode(cfg: CollectConfig, index: int) -> EpisodeSpec:
+    """The episode `index` of a run: its world seed and a start/goal drawn from an RNG seeded by that seed."""
+    seed = episode_seed(cfg, index)
+    # The start/goal stream depends only on (seed, index), never on earlier episodes' outcomes.
+    rng = np.random.default_rng([seed, index])
+    start, yaw, goal = sample_start_goal(cfg.start_goal, rng)
+    return EpisodeSpec(index, seed, tuple(map(float, start)), float(yaw), tuple(map(float, goal)))
+
+
+@dataclass(frozen=True)
+class EpisodeOutcome:
+    index: int
+    seed: int
+    outcome: str  # "goal_reached" | "collision" | "timeout" | "reset_failed" | "interrupted"
+    reason: str
+    sim_duration_s: float
+    samples: int
+
+
+class StopCondition:
+    """When a run is done: after `episodes` episodes, or once `max_samples` samples were recorded."""
+
+    def __init__(self, cfg: CollectConfig) -> None:
+        self._cfg = cfg
+
+    def done(self, episodes_finished: int, samples: int) -> tuple[bool, str]:
+        if episodes_finished >= self._cfg.episodes:
+            return True, f"{episodes_finished} episodes finished"
+        if self._cfg.max_samples and samples >= self._cfg.max_samples:
+            return True, f"{samples} samples recorded (max_samples={self._cfg.max_samples})"
+        return False, ""
+
+
+class EpisodeLog:
+    """episodes.csv in the dataset directory: one row per finished episode, flushed and fsynced per row so a
+    crash never loses a finished episode's row."""
+
+    FIELDS = [f for f in EpisodeOutcome.__dataclass_fields__]
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        new = not self.path.exists() or self.path.stat().st_size == 0
+        self._f = open(self.path, "a", newline="")  # noqa: SIM115 - kept open for the run
+        self._w = csv.DictWriter(self._f, fieldnames=self.FIELDS)
+        if new:
+            self._w.writeheader()
+            self._sync()
+
+    def append(self, outcome: EpisodeOutcome) -> None:
+        self._w.writerow(asdict(outcome))
+        self._sync()
+
+    def _sync(self) -> None:
+        self._f.flush()
+        os.fsync(self._f.fileno())
+
+    def close(self) -> None:
+        self._f.close()
+
+    @staticmethod
+    def read(path: str | os.PathLike) -> list[EpisodeOutcome]:
+        with open(path, newline="") as f:
+            rows = list(csv.DictReader(f))
+        return [
+            EpisodeOutcome(
+                int(r["index"]),
+                int(r["seed"]),
+                r["outcome"],
+                r["reason"],
+                float(r["sim_duration_s"]),
+                int(r["samples"]),
+            )
+            for r in rows
+        ]
