@@ -1,0 +1,151 @@
+"""TorchScript export of a trained policy, with its preprocessing, for the inference nodes (issue 8).
+
+The file is `torch.jit.freeze(torch.jit.script(policy.eval()))` saved with one extra file,
+`quad_il_policy.json` (read in C++ with `torch::jit::load(path, device, extra_files)`, in Python with
+`torch.jit.load(path, _extra_files=...)`). Its methods:
+
+    forward(depth_m (B,H,W) float32 metres, p_world_body (B,3), v_world (B,3), q_world_body (B,4) xyzw,
+            goal_world (B,3)) -> control points (B, K, 3) in the world frame, float32
+    preprocess_depth(depth_m) -> (B,1,h,w)  (exactly the training preprocessing)
+    forward_prepared(depth_x, p, v, q, goal) -> flat output in the training representation
+    encode_target(ctrl_world, p, q), decode(y, p, q)
+
+and attributes input_height, input_width, max_depth_m, num_ctrl_pts, horizon_s. Any depth image size is
+accepted (the file resizes); the control points span `horizon_s` seconds from the depth frame's stamp.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import warnings
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from quad_il.learning.model import Policy
+
+META_FILE = "quad_il_policy.json"
+META_FORMAT = "quad_il_policy/1"
+PRESERVED = [
+    "preprocess_depth",
+    "forward_prepared",
+    "encode_target",
+    "decode",
+    "input_height",
+    "input_width",
+    "max_depth_m",
+    "num_ctrl_pts",
+    "horizon_s",
+]
+
+
+@contextlib.contextmanager
+def _quiet_jit() -> Iterator[None]:
+    """torch 2.13 marks TorchScript deprecated; it is still LibTorch's (C++) loading path: used on purpose."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", category=DeprecationWarning, message=r".*torch\.jit\.")
+        yield
+
+
+def policy_metadata(
+    policy: Policy, model_cfg: dict[str, Any], extra: dict[str, Any] | None = None
+) -> dict[str, Any]:
+    pre = policy.depth_pre
+    enc = policy.state_enc
+    codec = policy.codec
+    meta: dict[str, Any] = {
+        "format": META_FORMAT,
+        "inputs": {
+            "depth_m": "(B, H, W) float32 metres, any H and W; +inf or NaN = no return",
+            "p_world_body": "(B, 3) float32 m, ENU world",
+            "v_world": "(B, 3) float32 m/s, world frame",
+            "q_world_body": "(B, 4) float32 quaternion x, y, z, w (body -> world)",
+            "goal_world": "(B, 3) float32 m, world frame",
+        },
+        "output": {
+            "ctrl_world": "(B, K, 3) float32 m, world frame B-spline control points",
+            "num_ctrl_pts": policy.num_ctrl_pts,
+            "horizon_s": policy.horizon_s,
+            "bspline": (
+                "uniform cubic (order 3), knots (i - 3) * horizon_s / (K - 3) for i = 0..K+3, domain "
+                "[0, horizon_s] seconds from the depth frame's stamp (docs/data_format.md)"
+            ),
+            "bspline_order": 3,
+            "knot_dt_s": policy.horizon_s / (policy.num_ctrl_pts - 3) if policy.num_ctrl_pts > 3 else None,
+            "network_frame": "local" if codec.local_frame else "world",
+            "network_representation": "polynomial" if codec.polynomial else "bspline",
+        },
+        "preprocessing": {
+            "depth": (
+                "float32; NaN,+inf -> max_depth_m, -inf -> 0; clamp [0, max_depth_m]; "
+                "adaptive_avg_pool2d to (input_height, input_width); divide by max_depth_m; round to float16"
+            ),
+            "input_height": pre.out_height,
+            "input_width": pre.out_width,
+            "max_depth_m": pre.max_depth_m,
+            "state_frame": "local" if enc.local_frame else "world",
+            "position_scale_m": enc.position_scale_m,
+            "velocity_scale_mps": enc.velocity_scale_mps,
+        },
+        "model": model_cfg,
+    }
+    if extra:
+        meta.update(extra)
+    return meta
+
+
+def export_torchscript(
+    policy: Policy,
+    path: str | Path,
+    meta: dict[str, Any],
+    check_inputs: tuple[torch.Tensor, ...] | None = None,
+    tol: float = 1e-4,
+) -> float:
+    """Script, freeze and save; with `check_inputs` the reloaded file is run against the eager policy.
+
+    Returns the largest absolute difference found (0.0 without check inputs); raises RuntimeError above `tol`.
+    """
+    was_training = policy.training
+    policy.eval()
+    try:
+        with _quiet_jit():
+            frozen = torch.jit.freeze(torch.jit.script(policy), preserved_attrs=PRESERVED)
+            out = Path(path)
+            tmp = out.with_name(out.name + ".partial")
+            torch.jit.save(
+                frozen, str(tmp), _extra_files={META_FILE: json.dumps(meta, indent=1, sort_keys=True)}
+            )
+        tmp.replace(out)
+        diff = 0.0
+        if check_inputs is not None:
+            with _quiet_jit():
+                loaded = torch.jit.load(str(out))
+            with torch.no_grad():
+                diff = float((loaded(*check_inputs) - policy(*check_inputs)).abs().max())
+            if not diff <= tol:
+                raise RuntimeError(
+                    f"TorchScript export differs from the eager policy by {diff:.3g} (> {tol})"
+                )
+        return diff
+    finally:
+        policy.train(was_training)
+
+
+def load_exported(path: str | Path) -> tuple[torch.jit.ScriptModule, dict[str, Any]]:
+    """(module, metadata) of an exported policy file."""
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"policy file not found: {p}")
+    extra = {META_FILE: ""}
+    with _quiet_jit():
+        module = torch.jit.load(str(p), map_location="cpu", _extra_files=extra)
+    raw = extra[META_FILE]
+    if not raw:
+        raise ValueError(f"{p}: not a quad_il policy export (no {META_FILE})")
+    meta = json.loads(raw)
+    if meta.get("format") != META_FORMAT:
+        raise ValueError(f"{p}: unsupported policy format {meta.get('format')!r} (want {META_FORMAT})")
+    return module, meta

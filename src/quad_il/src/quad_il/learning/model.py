@@ -1,0 +1,151 @@
+"""The policy network of the thesis (section 3.7, Table 3.1) and the exported policy around it.
+
+    depth (B,1,h,w) -> MobileNetV3 (1000 logits) -> post-processing MLP [128, 64, 32] --+
+                                                                                       concat
+    state (B,13) -> state MLP [64, 32, 32] --------------------------------------------+
+        -> planning MLP [64, 128, 128] -> Linear -> flat B-spline (K x 3) or polynomial coefficients
+
+ReLU after every hidden layer of the three MLPs (the thesis: "All networks use ReLU"); the final Linear has
+none.
+
+`Policy` wraps the network with the preprocessing and output decoding of `preprocessing.py`, so one
+TorchScript file maps (raw depth metres, odometry, goal) to world-frame control points (`export.py`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from torch import Tensor, nn
+
+from quad_il.learning.config import ModelConfig
+from quad_il.learning.mobilenet_v3 import MobileNetV3
+from quad_il.learning.preprocessing import STATE_DIM, DepthPreprocessor, OutputCodec, StateEncoder
+
+
+def mlp(in_dim: int, widths: Sequence[int]) -> nn.Sequential:
+    """Linear -> ReLU for each width."""
+    layers: list[nn.Module] = []
+    for w in widths:
+        layers += [nn.Linear(in_dim, w), nn.ReLU()]
+        in_dim = w
+    return nn.Sequential(*layers)
+
+
+class PolicyNet(nn.Module):
+    """The learned part: (preprocessed depth, state vector) -> flat output vector."""
+
+    def __init__(
+        self,
+        variant: str,
+        out_dim: int,
+        backbone_out: int = 1000,
+        backbone_dropout: float = 0.2,
+        depth_mlp: Sequence[int] = (128, 64, 32),
+        state_mlp: Sequence[int] = (64, 32, 32),
+        planning_mlp: Sequence[int] = (64, 128, 128),
+        state_dim: int = STATE_DIM,
+    ) -> None:
+        super().__init__()
+        self.backbone = MobileNetV3(
+            variant, in_channels=1, num_classes=backbone_out, dropout=backbone_dropout
+        )
+        self.depth_mlp = mlp(backbone_out, depth_mlp)
+        self.state_mlp = mlp(state_dim, state_mlp)
+        self.planning_mlp = mlp(depth_mlp[-1] + state_mlp[-1], planning_mlp)
+        self.head = nn.Linear(planning_mlp[-1], out_dim)
+        for m in [self.depth_mlp, self.state_mlp, self.planning_mlp, self.head]:
+            for layer in m.modules():
+                if isinstance(layer, nn.Linear):
+                    # PyTorch's default Linear init (Kaiming-uniform a=sqrt(5)); explicit so it is seeded
+                    # here.
+                    layer.reset_parameters()
+
+    def forward(self, depth_x: Tensor, state_x: Tensor) -> Tensor:
+        f_depth = self.depth_mlp(self.backbone(depth_x))
+        f_state = self.state_mlp(state_x)
+        return self.head(self.planning_mlp(torch.cat([f_depth, f_state], dim=1)))
+
+
+class Policy(nn.Module):
+    """Preprocessing + PolicyNet + output decoding. `forward` is what the inference nodes call.
+
+    forward(depth_m (B,H,W) metres float32 (+inf = no return), p_world_body (B,3), v_world (B,3),
+            q_world_body (B,4) xyzw, goal_world (B,3)) -> control points in the world frame (B, K, 3).
+    """
+
+    def __init__(self, cfg: ModelConfig, num_ctrl_pts: int, horizon_s: float) -> None:
+        super().__init__()
+        self.depth_pre = DepthPreprocessor(cfg.input_height, cfg.input_width, cfg.max_depth_m)
+        self.state_enc = StateEncoder(
+            cfg.state_frame == "local", cfg.position_scale_m, cfg.velocity_scale_mps
+        )
+        self.codec = OutputCodec(
+            num_ctrl_pts, cfg.output_frame == "local", cfg.output == "polynomial", cfg.poly_degree
+        )
+        self.net = PolicyNet(
+            cfg.variant,
+            self.codec.out_dim,
+            cfg.backbone_out,
+            cfg.backbone_dropout,
+            cfg.depth_mlp,
+            cfg.state_mlp,
+            cfg.planning_mlp,
+        )
+        # Top-level copies of the interface parameters: preserved as attributes of the frozen TorchScript
+        # file.
+        self.input_height = int(cfg.input_height)
+        self.input_width = int(cfg.input_width)
+        self.max_depth_m = float(cfg.max_depth_m)
+        self.num_ctrl_pts = int(num_ctrl_pts)
+        self.horizon_s = float(horizon_s)
+
+    def forward(
+        self, depth_m: Tensor, p_world_body: Tensor, v_world: Tensor, q_world_body: Tensor, goal_world: Tensor
+    ) -> Tensor:
+        _check_state_shapes(depth_m, p_world_body, v_world, q_world_body, goal_world)
+        y = self.forward_prepared(self.depth_pre(depth_m), p_world_body, v_world, q_world_body, goal_world)
+        return self.codec.decode(y, p_world_body, q_world_body)
+
+    @torch.jit.export
+    def preprocess_depth(self, depth_m: Tensor) -> Tensor:
+        return self.depth_pre(depth_m)
+
+    @torch.jit.export
+    def forward_prepared(
+        self, depth_x: Tensor, p_world_body: Tensor, v_world: Tensor, q_world_body: Tensor, goal_world: Tensor
+    ) -> Tensor:
+        """Preprocessed depth (B,1,h,w) + raw state -> flat output vector in the training representation."""
+        return self.net(depth_x, self.state_enc(p_world_body, v_world, q_world_body, goal_world))
+
+    @torch.jit.export
+    def encode_target(self, ctrl_world: Tensor, p_world_body: Tensor, q_world_body: Tensor) -> Tensor:
+        return self.codec.encode(ctrl_world, p_world_body, q_world_body)
+
+    @torch.jit.export
+    def decode(self, y: Tensor, p_world_body: Tensor, q_world_body: Tensor) -> Tensor:
+        return self.codec.decode(y, p_world_body, q_world_body)
+
+
+def _check_state_shapes(depth_m: Tensor, p: Tensor, v: Tensor, q: Tensor, goal: Tensor) -> None:
+    b = depth_m.size(0)
+    if p.dim() != 2 or p.size(0) != b or p.size(1) != 3:
+        raise RuntimeError("p_world_body must be (B, 3) with B = depth batch size")
+    if v.dim() != 2 or v.size(0) != b or v.size(1) != 3:
+        raise RuntimeError("v_world must be (B, 3) with B = depth batch size")
+    if q.dim() != 2 or q.size(0) != b or q.size(1) != 4:
+        raise RuntimeError("q_world_body must be (B, 4) xyzw with B = depth batch size")
+    if goal.dim() != 2 or goal.size(0) != b or goal.size(1) != 3:
+        raise RuntimeError("goal_world must be (B, 3) with B = depth batch size")
+
+
+def build_policy(cfg: ModelConfig, num_ctrl_pts: int, horizon_s: float) -> Policy:
+    """A Policy, randomly initialised (global torch RNG: seed it first) or with torchvision's backbone."""
+    policy = Policy(cfg, num_ctrl_pts, horizon_s)
+    if cfg.backbone_weights:
+        state = torch.load(cfg.backbone_weights, map_location="cpu", weights_only=True)
+        if not isinstance(state, dict):
+            raise ValueError(f"model.backbone_weights: {cfg.backbone_weights} does not hold a state dict")
+        policy.net.backbone.load_torchvision_state_dict(state, load_classifier=cfg.backbone_out == 1000)
+    return policy

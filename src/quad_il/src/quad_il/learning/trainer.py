@@ -1,0 +1,507 @@
+"""Behaviour-cloning training loop (thesis section 3.9) with reproducible, resumable run directories.
+
+Run directory `<run.out_dir>/<run.name>/`:
+    config.yaml            resolved configuration (what was trained)
+    run_info.json          seed, software commit (+ dirty flag), versions, command line, resumptions
+    dataset_manifest.json  sources (size, sha256, collector manifest), split episodes and world seeds
+    metrics.csv            one row per epoch (CSV_COLUMNS)
+    tensorboard/           the same scalars for TensorBoard
+    checkpoints/last.pt    everything needed to resume (model, optimiser, scheduler, RNG, epoch)
+    checkpoints/best.pt    the epoch with the lowest validation loss
+    policy.ts              TorchScript export of best.pt, with preprocessing (export.py)
+    loss_curves.png        training/validation loss and learning rate per epoch
+    summary.json           best epoch and losses, export check
+
+Determinism: the global torch RNG is seeded with run.seed before the network is built, the thread count is
+fixed, `torch.use_deterministic_algorithms` is on, and the batch order of epoch e is a function of (seed, e).
+Two runs with the same configuration and data give identical losses; a resumed run continues the same curve.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import random
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import Tensor
+from tqdm import tqdm
+
+from quad_il.learning import metrics
+from quad_il.learning.config import (
+    RESUME_MUTABLE_KEYS,
+    ConfigError,
+    ModelConfig,
+    TrainConfig,
+    config_differences,
+    dump_config,
+    load_config,
+)
+from quad_il.learning.dataset import (
+    Batch,
+    BatchLoader,
+    PreparedData,
+    ShardOptions,
+    Split,
+    load_dataset,
+    split_by_episode,
+)
+from quad_il.learning.export import export_torchscript, policy_metadata
+from quad_il.learning.losses import batch_loss
+from quad_il.learning.model import Policy, build_policy
+from quad_il.learning.preprocessing import DepthPreprocessor
+from quad_il.learning.runinfo import dataset_manifest, software_info
+from quad_il.learning.schedulers import build_scheduler
+
+CSV_COLUMNS = [
+    "epoch",
+    "global_step",
+    "lr",
+    "train_loss",
+    "val_loss",
+    "val_mse_world_m2",
+    "val_cosine_world",
+    "epoch_wall_s",
+]
+CHECKPOINT_FORMAT = "quad_il.learning.checkpoint/1"
+PolicyFactory = Callable[[ModelConfig, int, float], Policy]
+
+
+class NonFiniteLossError(RuntimeError):
+    """The loss became NaN or Inf; the message names the epoch, step and the batch's samples."""
+
+
+class RunDirError(RuntimeError):
+    """The run directory cannot be used as asked (exists without --resume, or nothing to resume)."""
+
+
+@dataclass(frozen=True)
+class EpochRecord:
+    epoch: int
+    global_step: int
+    lr: float
+    train_loss: float
+    val_loss: float
+    val_mse_world_m2: float
+    val_cosine_world: float
+    epoch_wall_s: float
+
+    def row(self) -> dict[str, Any]:
+        return {c: getattr(self, c) for c in CSV_COLUMNS}
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    run_dir: Path
+    history: list[EpochRecord]
+    best_epoch: int
+    best_val_loss: float
+    policy_path: Path | None
+
+
+def configure_determinism(seed: int, num_threads: int, deterministic: bool) -> None:
+    random.seed(seed)
+    torch.manual_seed(seed)
+    torch.set_num_threads(num_threads)
+    torch.use_deterministic_algorithms(deterministic)
+
+
+def run_dir_of(cfg: TrainConfig) -> Path:
+    return Path(cfg.run.out_dir) / cfg.run.name
+
+
+def _atomic_torch_save(obj: Any, path: Path) -> None:
+    tmp = path.with_name(path.name + ".partial")
+    torch.save(obj, tmp)
+    tmp.replace(path)
+
+
+def _read_csv(path: Path) -> list[dict[str, str]]:
+    if not path.is_file():
+        return []
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
+    tmp = path.with_name(path.name + ".partial")
+    with open(tmp, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=CSV_COLUMNS)
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: r[k] for k in CSV_COLUMNS})
+    tmp.replace(path)
+
+
+def _record_from_row(r: dict[str, str]) -> EpochRecord:
+    return EpochRecord(
+        int(r["epoch"]),
+        int(r["global_step"]),
+        *(float(r[k]) for k in CSV_COLUMNS[2:]),  # type: ignore[arg-type]
+    )
+
+
+class Trainer:
+    """One training run. `Trainer(cfg).fit()`; `Trainer(cfg, resume=True)` continues `run_dir_of(cfg)`."""
+
+    def __init__(
+        self,
+        cfg: TrainConfig,
+        resume: bool = False,
+        data: PreparedData | None = None,
+        policy_factory: PolicyFactory = build_policy,
+        argv: list[str] | None = None,
+    ) -> None:
+        self.run_dir = run_dir_of(cfg)
+        self.resume = resume
+        self.argv = argv if argv is not None else sys.argv
+        if resume:
+            cfg = self._check_resumable(cfg)
+        elif (self.run_dir / "checkpoints" / "last.pt").exists() or (self.run_dir / "metrics.csv").exists():
+            raise RunDirError(
+                f"run directory {self.run_dir} already holds a run: resume it or choose run.name"
+            )
+        self.cfg = cfg
+        configure_determinism(cfg.run.seed, cfg.run.num_threads, cfg.run.deterministic)
+        # The policy needs the dataset's K and horizon, the data only the parameter-free depth preprocessor
+        # (built from the same config, identical to the policy's own): data first, then the seeded network.
+        pre = DepthPreprocessor(cfg.model.input_height, cfg.model.input_width, cfg.model.max_depth_m)
+        sh = cfg.data.shards
+        shards = ShardOptions(sh.num_ctrl_pts, sh.horizon_s, sh.on_corrupt)
+        self.data = data if data is not None else load_dataset(cfg.data.paths, pre, shards)
+        torch.manual_seed(cfg.run.seed)
+        self.policy = policy_factory(cfg.model, self.data.num_ctrl_pts, self.data.horizon_s)
+        if cfg.optim.channels_last:
+            self.policy = self.policy.to(memory_format=torch.channels_last)
+        self.split: Split = split_by_episode(
+            self.data.world_seed,
+            self.data.episode_id,
+            cfg.data.val_fraction,
+            cfg.run.seed,
+            cfg.data.train_episode_fraction,
+        )
+        with torch.no_grad():
+            self.targets = self.policy.encode_target(
+                self.data.ctrl_world, self.data.p_world_body, self.data.q_world_body
+            ).contiguous()
+        o = cfg.optim
+        self.train_loader = BatchLoader(
+            self.data,
+            self.targets,
+            self.split.train_idx,
+            o.batch_size,
+            True,
+            cfg.run.seed,
+            True,
+            cfg.data.num_workers,
+        )
+        self.val_loader = BatchLoader(
+            self.data,
+            self.targets,
+            self.split.val_idx,
+            4 * o.batch_size,
+            False,
+            0,
+            False,
+            cfg.data.num_workers,
+        )
+        params = self.policy.parameters()
+        if o.optimizer == "adam":
+            self.optimizer: torch.optim.Optimizer = torch.optim.Adam(
+                params, lr=o.lr, weight_decay=o.weight_decay
+            )
+        elif o.optimizer == "adamw":
+            self.optimizer = torch.optim.AdamW(params, lr=o.lr, weight_decay=o.weight_decay)
+        else:
+            self.optimizer = torch.optim.SGD(
+                params, lr=o.lr, momentum=o.momentum, weight_decay=o.weight_decay
+            )
+        self.scheduler = build_scheduler(cfg.scheduler, self.optimizer)
+        self.start_epoch = 0
+        self.global_step = 0
+        self.best_val_loss = math.inf
+        self.best_epoch = 0
+        self.history: list[EpochRecord] = []
+        self._writer: Any = None  # TensorBoard SummaryWriter while fit() runs
+
+    # ------------------------------------------------------------------------------------------------ run dir
+    def _check_resumable(self, cfg: TrainConfig) -> TrainConfig:
+        ckpt = self.run_dir / "checkpoints" / "last.pt"
+        saved_cfg_path = self.run_dir / "config.yaml"
+        if not ckpt.is_file() or not saved_cfg_path.is_file():
+            raise RunDirError(f"nothing to resume in {self.run_dir} (no checkpoints/last.pt or config.yaml)")
+        saved = load_config([saved_cfg_path])
+        changed = {k: v for k, v in config_differences(saved, cfg).items() if k not in RESUME_MUTABLE_KEYS}
+        if changed:
+            detail = ", ".join(f"{k}: {a!r} -> {b!r}" for k, a, b in ((k, *v) for k, v in changed.items()))
+            raise ConfigError(
+                f"cannot resume {self.run_dir} with a different configuration ({detail}); only "
+                f"{sorted(RESUME_MUTABLE_KEYS)} may change"
+            )
+        return cfg
+
+    def _write_run_files(self) -> None:
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        (self.run_dir / "checkpoints").mkdir(exist_ok=True)
+        dump_config(self.cfg, self.run_dir / "config.yaml")
+        info_path = self.run_dir / "run_info.json"
+        now = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+        entry = {"started": now, "argv": list(self.argv), "software": software_info()}
+        if self.resume and info_path.is_file():
+            info = json.loads(info_path.read_text())
+            info.setdefault("resumptions", []).append({**entry, "from_epoch": self.start_epoch})
+        else:
+            info = {"seed": self.cfg.run.seed, **entry}
+        info_path.write_text(json.dumps(info, indent=1))
+        manifest = dataset_manifest(self.cfg.data.paths, self.data, self.split, self.cfg.data.hash_files)
+        (self.run_dir / "dataset_manifest.json").write_text(json.dumps(manifest, indent=1, default=str))
+
+    def _checkpoint(self, epoch: int) -> dict[str, Any]:
+        return {
+            "format": CHECKPOINT_FORMAT,
+            "epoch": epoch,
+            "global_step": self.global_step,
+            "model": self.policy.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "scheduler": self.scheduler.state_dict() if self.scheduler is not None else None,
+            "best_val_loss": self.best_val_loss,
+            "best_epoch": self.best_epoch,
+            "torch_rng_state": torch.get_rng_state(),
+            "config": self.cfg.to_dict(),
+            "num_ctrl_pts": self.data.num_ctrl_pts,
+            "horizon_s": self.data.horizon_s,
+        }
+
+    def _restore(self) -> None:
+        ckpt = torch.load(self.run_dir / "checkpoints" / "last.pt", map_location="cpu", weights_only=False)
+        if ckpt.get("format") != CHECKPOINT_FORMAT:
+            raise RunDirError(
+                f"{self.run_dir}: checkpoint format {ckpt.get('format')!r} is not {CHECKPOINT_FORMAT}"
+            )
+        self.policy.load_state_dict(ckpt["model"])
+        self.optimizer.load_state_dict(ckpt["optimizer"])
+        if self.scheduler is not None:
+            self.scheduler.load_state_dict(ckpt["scheduler"])
+        torch.set_rng_state(ckpt["torch_rng_state"])
+        self.start_epoch = int(ckpt["epoch"])
+        self.global_step = int(ckpt["global_step"])
+        self.best_val_loss = float(ckpt["best_val_loss"])
+        self.best_epoch = int(ckpt["best_epoch"])
+        # Rows written after the checkpoint (a crash between the two writes) are redone identically.
+        rows = [r for r in _read_csv(self.run_dir / "metrics.csv") if int(r["epoch"]) <= self.start_epoch]
+        self.history = [_record_from_row(r) for r in rows]
+
+    # ----------------------------------------------------------------------------------------------- training
+    def _nonfinite(self, epoch: int, batch: Batch, per_sample: Tensor, what: str) -> NonFiniteLossError:
+        bad = (~torch.isfinite(per_sample)).nonzero().flatten().tolist()
+        culprits = bad if bad else list(range(len(batch.indices)))
+        names = ", ".join(self.data.describe(int(batch.indices[i])) for i in culprits[:10])
+        return NonFiniteLossError(
+            f"non-finite {what} at epoch {epoch}, step {self.global_step}: batch of dataset indices "
+            f"{batch.indices.tolist()}; non-finite per-sample loss for {names}"
+            f"{' ...' if len(culprits) > 10 else ''}"
+        )
+
+    def _train_epoch(self, epoch: int) -> float:
+        self.policy.train()
+        o = self.cfg.optim
+        total, count = 0.0, 0
+        bar = tqdm(
+            self.train_loader.epoch(epoch),
+            total=len(self.train_loader),
+            desc=f"epoch {epoch}/{o.epochs}",
+            disable=not self.cfg.log.progress,
+            leave=False,
+            file=sys.stderr,
+            dynamic_ncols=True,
+        )
+        for batch in bar:
+            x = batch.depth_x
+            if o.channels_last:
+                x = x.contiguous(memory_format=torch.channels_last)
+            y = self.policy.forward_prepared(
+                x, batch.p_world_body, batch.v_world, batch.q_world_body, batch.goal_world
+            )
+            loss, per = batch_loss(o.loss, y, batch.target)
+            if not bool(torch.isfinite(loss)):
+                raise self._nonfinite(epoch, batch, per.detach(), "training loss")
+            self.optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            if o.grad_clip_norm is not None:
+                norm = torch.nn.utils.clip_grad_norm_(self.policy.parameters(), o.grad_clip_norm)
+                if not bool(torch.isfinite(norm)):
+                    raise self._nonfinite(epoch, batch, per.detach(), "gradient norm")
+            self.optimizer.step()
+            if self.scheduler is not None:
+                self.scheduler.step()
+            self.global_step += 1
+            if self._writer is not None:
+                self._writer.add_scalar("step/train_loss", loss.item(), self.global_step)
+                self._writer.add_scalar("step/lr", self.optimizer.param_groups[0]["lr"], self.global_step)
+            total += float(per.detach().sum())
+            count += len(per)
+            bar.set_postfix(loss=f"{loss.item():.4g}", lr=f"{self.optimizer.param_groups[0]['lr']:.3g}")
+        return total / max(count, 1)
+
+    @torch.no_grad()
+    def _validate(self, epoch: int) -> tuple[float, float, float]:
+        self.policy.eval()
+        loss_sum, mse_sum, cos_sum, n = 0.0, 0.0, 0.0, 0
+        for batch in self.val_loader.epoch(0):
+            x = batch.depth_x
+            if self.cfg.optim.channels_last:
+                x = x.contiguous(memory_format=torch.channels_last)
+            y = self.policy.forward_prepared(
+                x, batch.p_world_body, batch.v_world, batch.q_world_body, batch.goal_world
+            )
+            _, per = batch_loss(self.cfg.optim.loss, y, batch.target)
+            if not bool(torch.isfinite(per).all()):
+                raise self._nonfinite(epoch, batch, per, "validation loss")
+            ctrl = self.policy.decode(y, batch.p_world_body, batch.q_world_body).numpy()
+            expert = self.data.ctrl_world.index_select(0, torch.from_numpy(batch.indices)).numpy()
+            loss_sum += float(per.sum())
+            mse_sum += float(metrics.mse(ctrl, expert).sum())
+            cos_sum += float(metrics.cosine_similarity(ctrl, expert).sum())
+            n += len(per)
+        return loss_sum / n, mse_sum / n, cos_sum / n
+
+    def fit(self) -> TrainResult:
+        if self.resume:
+            self._restore()
+        self._write_run_files()
+        writer = None
+        if self.cfg.log.tensorboard:
+            from torch.utils.tensorboard import SummaryWriter
+
+            # Every scalar is logged against the optimiser step (epoch scalars at the epoch's last step), so a
+            # resumed run purges exactly what it redoes: the events after the checkpoint's step.
+            writer = SummaryWriter(str(self.run_dir / "tensorboard"), purge_step=self.global_step + 1)
+            self._writer = writer
+        csv_path = self.run_dir / "metrics.csv"
+        _write_csv(csv_path, [r.row() for r in self.history])
+        epochs = self.cfg.optim.epochs
+        log = print if self.cfg.log.progress else (lambda *a, **k: None)
+        log(
+            f"[train] {self.run_dir}: {len(self.split.train_idx)} training / "
+            f"{len(self.split.val_idx)} validation "
+            f"samples ({len(self.split.train_episodes)} / {len(self.split.val_episodes)} episodes), "
+            f"epochs {self.start_epoch + 1}..{epochs}",
+            file=sys.stderr,
+        )
+        try:
+            for epoch in range(self.start_epoch + 1, epochs + 1):
+                t0 = time.perf_counter()
+                lr = self.optimizer.param_groups[0]["lr"]
+                train_loss = self._train_epoch(epoch)
+                val_loss, val_mse, val_cos = self._validate(epoch)
+                rec = EpochRecord(
+                    epoch,
+                    self.global_step,
+                    lr,
+                    train_loss,
+                    val_loss,
+                    val_mse,
+                    val_cos,
+                    time.perf_counter() - t0,
+                )
+                self.history.append(rec)
+                _write_csv(csv_path, [r.row() for r in self.history])
+                if writer is not None:
+                    for k in ("train_loss", "val_loss", "val_mse_world_m2", "val_cosine_world"):
+                        writer.add_scalar(f"epoch/{k}", getattr(rec, k), self.global_step)
+                    writer.add_scalar("epoch/epoch", epoch, self.global_step)
+                    writer.flush()
+                improved = val_loss < self.best_val_loss
+                if improved:
+                    self.best_val_loss, self.best_epoch = val_loss, epoch
+                ckpt = self._checkpoint(epoch)
+                _atomic_torch_save(ckpt, self.run_dir / "checkpoints" / "last.pt")
+                if improved:
+                    _atomic_torch_save(ckpt, self.run_dir / "checkpoints" / "best.pt")
+                log(
+                    f"[train] epoch {epoch}/{epochs}: train {train_loss:.5g}, val {val_loss:.5g}, "
+                    f"val MSE world {val_mse:.4g} m^2, cos {val_cos:.4f}, lr {lr:.3g}, "
+                    f"{rec.epoch_wall_s:.1f} s{' (best)' if improved else ''}",
+                    file=sys.stderr,
+                )
+        finally:
+            if writer is not None:
+                writer.close()
+            self._writer = None
+        return self._finish()
+
+    def _finish(self) -> TrainResult:
+        policy_path = None
+        summary: dict[str, Any] = {
+            "best_epoch": self.best_epoch,
+            "best_val_loss": self.best_val_loss,
+            "epochs": len(self.history),
+            "global_step": self.global_step,
+        }
+        if self.history:
+            summary["last"] = self.history[-1].row()
+        best = self.run_dir / "checkpoints" / "best.pt"
+        if self.cfg.log.export_torchscript and best.is_file():
+            ckpt = torch.load(best, map_location="cpu", weights_only=False)
+            self.policy.load_state_dict(ckpt["model"])
+            policy = self.policy.to(memory_format=torch.contiguous_format)
+            idx = torch.from_numpy(self.split.val_idx[:8])
+            depth = self.data.depth_x.index_select(0, idx).float() * self.cfg.model.max_depth_m
+            check = (
+                depth[:, 0],
+                self.data.p_world_body.index_select(0, idx),
+                self.data.v_world.index_select(0, idx),
+                self.data.q_world_body.index_select(0, idx),
+                self.data.goal_world.index_select(0, idx),
+            )
+            meta = policy_metadata(
+                policy,
+                self.cfg.model.model_dump(mode="json"),
+                {
+                    "run": {
+                        "name": self.cfg.run.name,
+                        "seed": self.cfg.run.seed,
+                        "best_epoch": self.best_epoch,
+                        "best_val_loss": self.best_val_loss,
+                        "loss": self.cfg.optim.loss,
+                        "software": software_info(),
+                    },
+                    "dataset": {
+                        "format_version": self.data.format_version,
+                        "train_world_seeds": sorted({s for s, _ in self.split.train_episodes}),
+                        "val_world_seeds": sorted({s for s, _ in self.split.val_episodes}),
+                    },
+                },
+            )
+            policy_path = self.run_dir / "policy.ts"
+            summary["export_max_abs_diff"] = export_torchscript(policy, policy_path, meta, check)
+            summary["policy"] = str(policy_path)
+        if self.cfg.log.plots and self.history:
+            from quad_il.learning.plots import plot_loss_curves
+
+            plot_loss_curves(
+                [r.row() for r in self.history],
+                self.run_dir / "loss_curves.png",
+                f"{self.cfg.run.name}: {self.cfg.optim.loss.upper()} loss, "
+                f"scheduler {self.cfg.scheduler.name}",
+            )
+        (self.run_dir / "summary.json").write_text(json.dumps(summary, indent=1))
+        return TrainResult(self.run_dir, list(self.history), self.best_epoch, self.best_val_loss, policy_path)
+
+
+def load_policy_checkpoint(path: str | Path) -> tuple[Policy, dict[str, Any]]:
+    """A Policy (eval mode) rebuilt from a checkpoint's stored configuration and weights."""
+    ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(f"{path}: not a quad_il training checkpoint")
+    cfg = TrainConfig.model_validate(ckpt["config"])
+    policy = Policy(cfg.model, int(ckpt["num_ctrl_pts"]), float(ckpt["horizon_s"]))
+    policy.load_state_dict(ckpt["model"])
+    return policy.eval(), ckpt

@@ -1,0 +1,154 @@
+"""Losses (thesis eq. 3.1, 3.2) and learning-rate schedulers (Tables 3.2, 3.3) vs hand-computed values."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+from torch.optim.lr_scheduler import CosineAnnealingWarmRestarts
+
+from quad_il.learning.config import SchedulerConfig
+from quad_il.learning.losses import batch_loss, mse_per_sample, per_sample_loss, sse_per_sample
+from quad_il.learning.schedulers import (
+    CustomCosineDecayRestarts,
+    build_scheduler,
+    cosine_decay_restarts_factor,
+)
+
+
+# ----------------------------------------------------------------------------------------------------- losses
+def test_mse_and_sse_equal_hand_computed_values() -> None:
+    expert = torch.tensor([[1.0, 2.0, 3.0, 4.0], [0.0, 0.0, 0.0, 0.0]])
+    learned = torch.tensor([[1.0, 0.0, 4.0, 4.0], [1.0, -1.0, 2.0, 0.5]])
+    # Sample 0: errors 0, 2, -1, 0 -> SSE 5, MSE 5/4; sample 1: 1, 1, 4, 0.25 -> SSE 6.25, MSE 1.5625.
+    torch.testing.assert_close(sse_per_sample(learned, expert), torch.tensor([5.0, 6.25]))
+    torch.testing.assert_close(mse_per_sample(learned, expert), torch.tensor([1.25, 1.5625]))
+    mean, per = batch_loss("sse", learned, expert)
+    assert mean.item() == pytest.approx(5.625) and per.shape == (2,)
+    assert batch_loss("mse", learned, expert)[0].item() == pytest.approx((1.25 + 1.5625) / 2)
+
+
+def test_losses_flatten_control_point_arrays() -> None:
+    a = torch.zeros(3, 10, 3)
+    b = torch.ones(3, 10, 3) * 2
+    torch.testing.assert_close(mse_per_sample(a, b), torch.full((3,), 4.0))
+    torch.testing.assert_close(sse_per_sample(a, b), torch.full((3,), 120.0))
+
+
+def test_loss_gradients_match_the_closed_form() -> None:
+    learned = torch.tensor([[0.5, -1.0, 2.0]], requires_grad=True)
+    expert = torch.tensor([[1.0, 1.0, 1.0]])
+    batch_loss("mse", learned, expert)[0].backward()
+    torch.testing.assert_close(learned.grad, 2 * (learned.detach() - expert) / 3)
+    learned.grad = None
+    batch_loss("sse", learned, expert)[0].backward()
+    torch.testing.assert_close(learned.grad, 2 * (learned.detach() - expert))
+
+
+def test_loss_rejects_bad_inputs() -> None:
+    with pytest.raises(ValueError, match="shape"):
+        mse_per_sample(torch.zeros(2, 3), torch.zeros(2, 4))
+    with pytest.raises(ValueError, match="'mse' or 'sse'"):
+        per_sample_loss("mae", torch.zeros(2, 3), torch.zeros(2, 3))  # type: ignore[arg-type]
+
+
+# ------------------------------------------------------------------------------------------------- schedulers
+def test_custom_schedule_with_the_thesis_values_at_hand_computed_steps() -> None:
+    # T_0 = 50000, t_mul = 1.5, alpha = 0.01, m_mul = 1: lr/lr0 = 0.01 + 0.99 * 0.5 * (1 + cos(pi x)).
+    f = lambda step: cosine_decay_restarts_factor(step, 50000, 1.5, 1.0, 0.01)  # noqa: E731
+    assert f(0) == pytest.approx(1.0)
+    assert f(25000) == pytest.approx(0.505)  # x = 1/2
+    assert f(12500) == pytest.approx(0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi / 4)))
+    assert f(49999) == pytest.approx(0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * 49999 / 50000)))
+    assert f(50000) == pytest.approx(1.0)  # first restart
+    assert f(50000 + 37500) == pytest.approx(0.505)  # second period lasts 75000 steps
+    assert f(125000) == pytest.approx(1.0)  # second restart at 50000 + 75000
+    assert f(125000 + 112500 // 2) == pytest.approx(0.505)  # third period lasts 112500 steps
+
+
+def test_custom_schedule_restart_peaks_decay_by_m_mul_and_floor_is_alpha() -> None:
+    f = lambda step: cosine_decay_restarts_factor(step, 10, 2.0, 0.5, 0.1)  # noqa: E731
+    # Periods of 10, 20, 40 steps; peaks 1, 0.5, 0.25 of the cosine part; floor 0.1.
+    assert f(0) == pytest.approx(1.0)
+    assert f(5) == pytest.approx(0.1 + 0.9 * 0.5)
+    assert f(10) == pytest.approx(0.1 + 0.9 * 0.5)
+    assert f(20) == pytest.approx(0.1 + 0.9 * 0.5 * 0.5)  # halfway through the second period
+    assert f(30) == pytest.approx(0.1 + 0.9 * 0.25)
+    assert f(50) == pytest.approx(0.1 + 0.9 * 0.25 * 0.5)
+    assert min(f(s) for s in range(200)) >= 0.1
+
+
+def test_custom_schedule_with_t_mul_one_is_periodic() -> None:
+    f = lambda step: cosine_decay_restarts_factor(step, 7, 1.0, 1.0, 0.0)  # noqa: E731
+    for s in range(30):
+        assert f(s) == pytest.approx(0.5 * (1 + math.cos(math.pi * (s % 7) / 7)))
+
+
+def test_custom_scheduler_drives_the_optimizer_learning_rate() -> None:
+    param = torch.nn.Parameter(torch.zeros(1))
+    opt = torch.optim.SGD([param], lr=0.2)
+    sched = CustomCosineDecayRestarts(opt, first_decay_steps=10, t_mul=1.5, m_mul=0.8, alpha=0.01)
+    for step in range(60):
+        assert opt.param_groups[0]["lr"] == pytest.approx(
+            0.2 * cosine_decay_restarts_factor(step, 10, 1.5, 0.8)
+        )
+        opt.step()
+        sched.step()
+
+
+def test_custom_scheduler_resumes_from_its_state_dict() -> None:
+    def run(steps: int, restore: dict | None = None) -> tuple[list[float], dict]:
+        opt = torch.optim.SGD([torch.nn.Parameter(torch.zeros(1))], lr=1.0)
+        sched = CustomCosineDecayRestarts(opt, 8, 1.5, 0.9, 0.05)
+        if restore is not None:
+            sched.load_state_dict(restore)
+            for g in opt.param_groups:
+                g["lr"] = sched.get_last_lr()[0]
+        lrs = []
+        for _ in range(steps):
+            opt.step()
+            sched.step()
+            lrs.append(opt.param_groups[0]["lr"])
+        return lrs, sched.state_dict()
+
+    full, _ = run(30)
+    first, state = run(12)
+    second, _ = run(18, state)
+    assert first + second == pytest.approx(full)
+
+
+def test_invalid_custom_scheduler_parameters_are_rejected() -> None:
+    with pytest.raises(ValueError, match="t_mul=0.5"):
+        cosine_decay_restarts_factor(0, 10, 0.5)
+    with pytest.raises(ValueError, match="step must be >= 0"):
+        cosine_decay_restarts_factor(-1, 10)
+
+
+def test_pytorch_scheduler_with_the_thesis_values_matches_the_closed_form() -> None:
+    # Table 3.2: T_0 = 500, T_mult = 1, eta_min = 1e-5:
+    #   lr(t) = eta_min + (lr0 - eta_min) (1 + cos(pi (t mod 500) / 500)) / 2
+    opt = torch.optim.Adam([torch.nn.Parameter(torch.zeros(1))], lr=1e-3)
+    sched = build_scheduler(SchedulerConfig(name="pytorch"), opt)
+    assert isinstance(sched, CosineAnnealingWarmRestarts)
+    hand = {
+        0: 1e-3,
+        125: 1e-5 + (1e-3 - 1e-5) * (1 + math.cos(math.pi / 4)) / 2,
+        250: 1e-5 + (1e-3 - 1e-5) / 2,
+        499: 1e-5 + (1e-3 - 1e-5) * (1 + math.cos(math.pi * 499 / 500)) / 2,
+        500: 1e-3,
+        750: 1e-5 + (1e-3 - 1e-5) / 2,
+    }
+    for step in range(751):
+        if step in hand:
+            assert opt.param_groups[0]["lr"] == pytest.approx(hand[step], rel=1e-9), step
+        opt.step()
+        sched.step()
+
+
+def test_scheduler_factory() -> None:
+    opt = torch.optim.SGD([torch.nn.Parameter(torch.zeros(1))], lr=1.0)
+    assert build_scheduler(SchedulerConfig(name="none"), opt) is None
+    custom = build_scheduler(SchedulerConfig(name="custom"), opt)
+    assert isinstance(custom, CustomCosineDecayRestarts)
+    assert (custom.first_decay_steps, custom.t_mul, custom.alpha) == (50000, 1.5, 0.01)

@@ -1,0 +1,406 @@
+"""Policy network: MobileNetV3 backbone vs torchvision, sub-network shapes and sizes, preprocessing, frames,
+output codecs and the TorchScript export (issue 7, "Must show (tests)")."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from quad_il.learning.config import ModelConfig
+from quad_il.learning.export import META_FILE, export_torchscript, load_exported, policy_metadata
+from quad_il.learning.mobilenet_v3 import MobileNetV3, adapt_stem_channels, count_parameters
+from quad_il.learning.model import Policy, PolicyNet, build_policy, mlp
+from quad_il.learning.preprocessing import (
+    DepthPreprocessor,
+    OutputCodec,
+    StateEncoder,
+    local_to_world_points,
+    polynomial_maps,
+    uniform_cubic_basis,
+    world_to_local_points,
+    yaw_from_quaternion,
+)
+
+# TorchScript is deprecated in torch 2.13 but is LibTorch's loading path (export.py): expected warnings.
+pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit:DeprecationWarning")
+DATA = Path(__file__).resolve().parent / "data"
+# torchvision's published parameter counts (3-channel input, 1000 ImageNet classes).
+TORCHVISION_PARAMS = {"small": 2_542_856, "large": 5_483_032}
+
+
+def read_torchvision_keys(variant: str) -> list[tuple[str, tuple[int, ...], str]]:
+    """Keys/shapes/dtypes listed by running torchvision's own mobilenet_v3_<variant>() (fixture file)."""
+    out = []
+    for line in (DATA / f"torchvision_mobilenet_v3_{variant}_keys.txt").read_text().splitlines():
+        if line.startswith("#") or not line.strip():
+            continue
+        key, shape, dtype = line.split()
+        out.append((key, () if shape == "-" else tuple(int(s) for s in shape.split("x")), dtype))
+    return out
+
+
+def yaw_quat(yaw: float) -> torch.Tensor:
+    return torch.tensor([[0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)]])
+
+
+# --------------------------------------------------------------------------------------------------- backbone
+@pytest.mark.parametrize("variant", ["small", "large"])
+def test_backbone_parameter_count_equals_torchvision_published(variant: str) -> None:
+    assert count_parameters(MobileNetV3(variant, in_channels=3)) == TORCHVISION_PARAMS[variant]
+    # One depth channel: the stem conv (16 filters of 3x3) loses two input channels.
+    assert (
+        count_parameters(MobileNetV3(variant, in_channels=1)) == TORCHVISION_PARAMS[variant] - 2 * 16 * 3 * 3
+    )
+
+
+@pytest.mark.parametrize("variant", ["small", "large"])
+def test_backbone_state_dict_has_torchvision_keys_shapes_and_dtypes(variant: str) -> None:
+    ours = MobileNetV3(variant, in_channels=3).state_dict()
+    expected = read_torchvision_keys(variant)
+    assert list(ours) == [k for k, _, _ in expected]
+    for key, shape, dtype in expected:
+        assert tuple(ours[key].shape) == shape, key
+        assert str(ours[key].dtype) == f"torch.{dtype}", key
+
+
+@pytest.mark.parametrize("variant", ["small", "large"])
+def test_torchvision_named_state_dict_loads_into_depth_backbone(variant: str) -> None:
+    gen = torch.Generator().manual_seed(3)
+    state = {}
+    for key, shape, dtype in read_torchvision_keys(variant):
+        if dtype == "int64":
+            state[key] = torch.tensor(7)
+        elif key.endswith("running_var"):
+            state[key] = torch.rand(shape, generator=gen) + 0.5
+        else:
+            state[key] = torch.randn(shape, generator=gen) * 0.1
+    net = MobileNetV3(variant, in_channels=1)
+    net.load_torchvision_state_dict(state)
+    own = net.state_dict()
+    assert torch.equal(own["features.0.0.weight"], state["features.0.0.weight"].sum(dim=1, keepdim=True))
+    for key in ("features.3.block.1.0.weight", "classifier.3.bias", "features.0.1.running_var"):
+        assert torch.equal(own[key], state[key]), key
+
+
+def test_one_channel_backbone_from_rgb_weights_matches_rgb_net_on_grey_images() -> None:
+    torch.manual_seed(0)
+    rgb = MobileNetV3("small", in_channels=3).eval()
+    for m in rgb.modules():  # non-trivial BatchNorm statistics
+        if isinstance(m, torch.nn.BatchNorm2d):
+            m.running_mean.uniform_(-0.3, 0.3)
+            m.running_var.uniform_(0.5, 2.0)
+    depth_net = MobileNetV3("small", in_channels=1).eval()
+    depth_net.load_torchvision_state_dict(rgb.state_dict())
+    grey = torch.rand(2, 1, 64, 64)
+    with torch.no_grad():
+        torch.testing.assert_close(depth_net(grey), rgb(grey.repeat(1, 3, 1, 1)), atol=1e-5, rtol=1e-5)
+
+
+def test_stem_adaptation_to_several_channels_keeps_constant_input_response() -> None:
+    w = torch.randn(16, 3, 3, 3)
+    w2 = adapt_stem_channels(w, 2)
+    assert w2.shape == (16, 2, 3, 3)
+    torch.testing.assert_close(w2.sum(dim=1), w.sum(dim=1))
+
+
+def test_mismatching_state_dict_is_rejected_naming_the_keys() -> None:
+    net = MobileNetV3("small", in_channels=1)
+    state = MobileNetV3("large", in_channels=3).state_dict()
+    with pytest.raises(ValueError, match=r"missing keys .*unexpected keys|shapes do not match"):
+        net.load_torchvision_state_dict(state)
+    state = MobileNetV3("small", in_channels=3).state_dict()
+    del state["features.5.block.2.fc1.weight"]
+    with pytest.raises(ValueError, match="features.5.block.2.fc1.weight"):
+        net.load_torchvision_state_dict(state)
+
+
+def test_classifier_can_be_skipped_for_another_output_width() -> None:
+    net = MobileNetV3("small", in_channels=1, num_classes=256)
+    net.load_torchvision_state_dict(MobileNetV3("small", in_channels=3).state_dict(), load_classifier=False)
+    assert net(torch.rand(2, 1, 32, 32)).shape == (2, 256)
+
+
+def test_build_policy_loads_backbone_weights_file(tmp_path: Path) -> None:
+    torch.manual_seed(1)
+    src = MobileNetV3("small", in_channels=3)
+    path = tmp_path / "mobilenet_v3_small.pth"
+    torch.save(src.state_dict(), path)
+    policy = build_policy(ModelConfig(input_height=32, input_width=32, backbone_weights=str(path)), 10, 2.0)
+    torch.testing.assert_close(
+        policy.net.backbone.state_dict()["classifier.0.weight"], src.classifier[0].weight
+    )
+
+
+# ----------------------------------------------------------------------------------------------- sub-networks
+def linear_params(widths: list[int]) -> int:
+    return sum(a * b + b for a, b in zip(widths[:-1], widths[1:], strict=True))
+
+
+def test_thesis_mlps_have_hand_computed_shapes_and_parameter_counts() -> None:
+    net = PolicyNet("small", out_dim=30)
+    assert count_parameters(net.depth_mlp) == linear_params([1000, 128, 64, 32]) == 138_464
+    assert count_parameters(net.state_mlp) == linear_params([13, 64, 32, 32]) == 4_032
+    assert count_parameters(net.planning_mlp) == linear_params([64, 64, 128, 128]) == 28_992
+    assert count_parameters(net.head) == 128 * 30 + 30
+    total = 2_542_856 - 2 * 16 * 9 + 138_464 + 4_032 + 28_992 + 3_870
+    assert count_parameters(net) == total
+    relus = [m for m in net.depth_mlp if isinstance(m, torch.nn.ReLU)]
+    assert len(relus) == 3 and len([m for m in net.planning_mlp if isinstance(m, torch.nn.ReLU)]) == 3
+    b = 2
+    x = torch.rand(b, 1, 32, 32)
+    s = torch.rand(b, 13)
+    with torch.no_grad():
+        f_backbone = net.backbone(x)
+        assert f_backbone.shape == (b, 1000)
+        assert net.depth_mlp(f_backbone).shape == (b, 32)
+        assert net.state_mlp(s).shape == (b, 32)
+        assert net.planning_mlp(torch.rand(b, 64)).shape == (b, 128)
+        assert net(x, s).shape == (b, 30)
+
+
+def test_mlp_is_linear_relu_pairs() -> None:
+    m = mlp(5, [4, 3])
+    assert [type(x).__name__ for x in m] == ["Linear", "ReLU", "Linear", "ReLU"]
+    assert (m(torch.randn(10, 5)) >= 0).all()
+
+
+@pytest.mark.parametrize(
+    ("output", "variant", "out_dim"),
+    [("bspline", "small", 30), ("polynomial", "small", 18), ("bspline", "large", 30)],
+)
+def test_policy_maps_raw_inputs_to_world_control_points(output: str, variant: str, out_dim: int) -> None:
+    torch.manual_seed(0)
+    policy = build_policy(
+        ModelConfig(variant=variant, input_height=32, input_width=32, output=output), 10, 2.0
+    )
+    assert policy.codec.out_dim == out_dim
+    b = 3
+    with torch.no_grad():
+        out = policy.eval()(
+            torch.rand(b, 45, 61) * 9,
+            torch.rand(b, 3),
+            torch.rand(b, 3),
+            yaw_quat(0.3).repeat(b, 1),
+            torch.rand(b, 3),
+        )
+    assert out.shape == (b, 10, 3) and out.dtype == torch.float32
+
+
+def test_policy_rejects_mismatched_state_shapes() -> None:
+    policy = build_policy(ModelConfig(input_height=32, input_width=32), 10, 2.0).eval()
+    with pytest.raises(RuntimeError, match="q_world_body must be"):
+        policy(torch.rand(2, 32, 32), torch.rand(2, 3), torch.rand(2, 3), torch.rand(2, 3), torch.rand(2, 3))
+
+
+# ---------------------------------------------------------------------------------------------- preprocessing
+def test_depth_preprocessing_is_block_mean_over_max_depth_with_no_return_as_max() -> None:
+    pre = DepthPreprocessor(8, 8, max_depth_m=10.0)
+    depth = torch.full((1, 16, 16), 2.0)
+    depth[0, :2, :2] = torch.tensor(
+        [[1.0, 3.0], [float("inf"), float("nan")]]
+    )  # block mean (1+3+10+10)/4 = 6
+    depth[0, 2:4, 0:2] = 25.0  # beyond range: clamped to 10
+    depth[0, 4:6, 0:2] = -float("inf")  # -> 0
+    before = depth.clone()
+    x = pre(depth)
+    assert torch.equal(depth.nan_to_num(), before.nan_to_num())  # the caller's image is not modified
+    assert x.shape == (1, 1, 8, 8) and x.dtype == torch.float32
+    assert x[0, 0, 0, 0].item() == pytest.approx(0.6, abs=2e-4)
+    assert x[0, 0, 1, 0].item() == 1.0
+    assert x[0, 0, 2, 0].item() == 0.0
+    assert x[0, 0, 5, 5].item() == pytest.approx(0.2, abs=1e-4)
+    assert torch.equal(x, x.half().float())  # float16-representable: the training cache is lossless
+
+
+def test_depth_preprocessing_does_not_depend_on_batch_composition() -> None:
+    pre = DepthPreprocessor(24, 32, 10.0)
+    depth = torch.rand(5, 1, 75, 101) * 12
+    together = pre(depth)
+    alone = torch.cat([pre(depth[i : i + 1]) for i in range(5)])
+    assert torch.equal(together, alone)
+
+
+def test_world_local_round_trip_and_known_rotation() -> None:
+    gen = torch.Generator().manual_seed(0)
+    pts = torch.randn(4, 10, 3, generator=gen) * 5
+    p = torch.randn(4, 3, generator=gen)
+    yaw = torch.rand(4, generator=gen) * 6 - 3
+    torch.testing.assert_close(local_to_world_points(world_to_local_points(pts, p, yaw), p, yaw), pts)
+    # Vehicle at (1, 2, 3) facing +y (yaw 90 deg): the world point (1, 5, 4) is 3 m ahead, 1 m up.
+    local = world_to_local_points(
+        torch.tensor([[[1.0, 5.0, 4.0]]]),
+        torch.tensor([[1.0, 2.0, 3.0]]),
+        yaw_from_quaternion(yaw_quat(math.pi / 2)),
+    )
+    torch.testing.assert_close(local, torch.tensor([[[3.0, 0.0, 1.0]]]), atol=1e-6, rtol=0)
+
+
+def test_local_state_encoding_on_a_hand_made_case() -> None:
+    enc = StateEncoder(local_frame=True, position_scale_m=2.0, velocity_scale_mps=0.5)
+    # Facing +y, flying +y at 1 m/s, goal 4 m ahead and 2 m to the left (-x in world).
+    s = enc(
+        torch.tensor([[1.0, 2.0, 3.0]]),
+        torch.tensor([[0.0, 1.0, 0.0]]),
+        -yaw_quat(math.pi / 2),
+        torch.tensor([[-1.0, 6.0, 3.0]]),
+    )
+    expected = torch.tensor([[0, 0, 1.5, 2.0, 0, 0, 0, 0, 0, 1, 2.0, 1.0, 0]])
+    torch.testing.assert_close(s, expected, atol=1e-6, rtol=0)
+    world = StateEncoder(local_frame=False, position_scale_m=2.0, velocity_scale_mps=0.5)
+    s = world(
+        torch.tensor([[1.0, 2.0, 3.0]]),
+        torch.tensor([[0.0, 1.0, 0.0]]),
+        -yaw_quat(0.0),
+        torch.tensor([[-1.0, 6.0, 3.0]]),
+    )
+    torch.testing.assert_close(s, torch.tensor([[0.5, 1, 1.5, 0, 2, 0, 0, 0, 0, 1, -0.5, 3, 1.5]]))
+
+
+def test_local_state_keeps_roll_and_pitch_but_not_yaw() -> None:
+    enc = StateEncoder(local_frame=True, position_scale_m=1.0, velocity_scale_mps=1.0)
+    roll = 0.2
+    q_roll = torch.tensor([[math.sin(roll / 2), 0.0, 0.0, math.cos(roll / 2)]])
+    outs = []
+    for yaw in (0.0, 1.0, -2.5):
+        # q = q_yaw * q_roll (xyzw Hamilton product with a pure-z quaternion)
+        cz, sz = math.cos(yaw / 2), math.sin(yaw / 2)
+        x, _, _, w = q_roll[0].tolist()
+        q = torch.tensor([[cz * x, sz * x, sz * w, cz * w]])
+        outs.append(enc(torch.zeros(1, 3), torch.zeros(1, 3), q, torch.zeros(1, 3))[0, 6:10])
+    for o in outs:
+        torch.testing.assert_close(o, q_roll[0], atol=1e-6, rtol=0)
+
+
+def test_bspline_codec_round_trips_in_both_frames() -> None:
+    gen = torch.Generator().manual_seed(1)
+    ctrl = torch.randn(3, 10, 3, generator=gen)
+    p = torch.randn(3, 3, generator=gen)
+    q = torch.nn.functional.normalize(torch.randn(3, 4, generator=gen), dim=1)
+    for local in (False, True):
+        codec = OutputCodec(10, local, polynomial=False, poly_degree=5)
+        y = codec.encode(ctrl, p, q)
+        assert y.shape == (3, 30)
+        torch.testing.assert_close(codec.decode(y, p, q), ctrl, atol=1e-5, rtol=0)
+    assert torch.equal(OutputCodec(10, False, False, 5).encode(ctrl, p, q), ctrl.reshape(3, 30))
+
+
+def test_uniform_cubic_basis_reproduces_polynomials_and_matches_de_boor() -> None:
+    a = uniform_cubic_basis(10, 57)
+    assert a.shape == (57, 10)
+    torch.testing.assert_close(a.sum(dim=1), torch.ones(57, dtype=torch.float64))  # partition of unity
+    # Greville abscissae of knots (i - 3) dt: control points (i - 1) dt reproduce the line p(t) = t (dt = 1).
+    greville = torch.arange(10, dtype=torch.float64) - 1.0
+    torch.testing.assert_close(a @ greville, torch.linspace(0, 7, 57, dtype=torch.float64))
+    bspline = pytest.importorskip("quad_il.data.bspline")  # the collector's de Boor (issue 6), if present
+    knots = bspline.uniform_knots(10, 3, 0.25)
+    ref = bspline.basis_matrix(knots, 10, 3, np.linspace(0.0, 7 * 0.25, 57))
+    np.testing.assert_allclose(a.numpy(), ref, atol=1e-12)
+
+
+def test_polynomial_codec_recovers_the_coefficients_of_a_cubic_trajectory() -> None:
+    # p(tau) = C0 + C1 tau + C2 tau^2 + C3 tau^3 over tau in [-1, 1]; its exact B-spline control points are
+    # the least-squares fit of dense samples (uniform cubic B-splines contain every cubic).
+    coeffs = torch.tensor(
+        [[1.0, -2.0, 0.5], [3.0, 0.0, 1.0], [-1.0, 4.0, 0.0], [0.5, -0.5, 0.2]], dtype=torch.float64
+    )
+    s = 16 * 7 + 1
+    tau = torch.linspace(-1, 1, s, dtype=torch.float64)
+    samples = (tau.unsqueeze(1) ** torch.arange(4, dtype=torch.float64)) @ coeffs
+    a = uniform_cubic_basis(10, s)
+    ctrl = torch.linalg.pinv(a) @ samples
+    torch.testing.assert_close(a @ ctrl, samples)  # the cubic is exactly a B-spline
+    for local in (False, True):
+        codec = OutputCodec(10, local, polynomial=True, poly_degree=5)
+        assert codec.out_dim == 18
+        p, q = torch.tensor([[0.5, -1.0, 2.0]]), yaw_quat(0.7)
+        world = ctrl.float().unsqueeze(0)
+        if (
+            local
+        ):  # the polynomial lives in the output frame: place the trajectory so its local form is `ctrl`
+            world = local_to_world_points(world, p, yaw_from_quaternion(q))
+        y = codec.encode(world, p, q)
+        expected = torch.cat([coeffs, torch.zeros(2, 3, dtype=torch.float64)]).float().reshape(1, -1)
+        torch.testing.assert_close(y, expected, atol=1e-4, rtol=0)
+        torch.testing.assert_close(codec.decode(y, p, q), world, atol=1e-4, rtol=0)
+
+
+def test_polynomial_degree_is_validated() -> None:
+    with pytest.raises(ValueError, match="poly_degree must be >= 1"):
+        polynomial_maps(10, 0)
+    with pytest.raises(ValueError, match="num_ctrl_pts >= 4"):
+        uniform_cubic_basis(3, 10)
+
+
+# ------------------------------------------------------------------------------------------------ TorchScript
+@pytest.mark.parametrize(
+    "kw",
+    [{}, {"state_frame": "local", "output_frame": "local", "output": "polynomial", "poly_degree": 4}],
+)
+def test_torchscript_export_equals_eager_policy(tmp_path: Path, kw: dict[str, object]) -> None:
+    torch.manual_seed(2)
+    cfg = ModelConfig(input_height=32, input_width=40, max_depth_m=8.0, **kw)
+    policy: Policy = build_policy(cfg, 10, 2.0)
+    # Train-mode BN statistics would be trivial; move them so eval mode is a real test of the export.
+    policy.train()
+    with torch.no_grad():
+        for _ in range(3):
+            policy.forward_prepared(
+                torch.rand(8, 1, 32, 40),
+                torch.randn(8, 3),
+                torch.randn(8, 3),
+                torch.nn.functional.normalize(torch.randn(8, 4), dim=1),
+                torch.randn(8, 3),
+            )
+    policy.eval()
+    gen = torch.Generator().manual_seed(5)
+    b = 6
+    depth = torch.rand(b, 60, 80, generator=gen) * 12
+    depth[0, :5, :5] = float("inf")
+    inputs = (
+        depth,
+        torch.randn(b, 3, generator=gen) * 10,
+        torch.randn(b, 3, generator=gen),
+        torch.nn.functional.normalize(torch.randn(b, 4, generator=gen), dim=1),
+        torch.randn(b, 3, generator=gen) * 10,
+    )
+    path = tmp_path / "policy.ts"
+    meta = policy_metadata(policy, cfg.model_dump(mode="json"))
+    diff = export_torchscript(policy, path, meta, check_inputs=inputs)
+    assert diff <= 1e-4
+    module, loaded_meta = load_exported(path)
+    with torch.no_grad():
+        torch.testing.assert_close(module(*inputs), policy(*inputs), atol=1e-5, rtol=1e-5)
+        assert torch.equal(module.preprocess_depth(depth), policy.preprocess_depth(depth))
+    assert (module.input_height, module.input_width, module.max_depth_m) == (32, 40, 8.0)
+    assert (module.num_ctrl_pts, module.horizon_s) == (10, 2.0)
+    assert loaded_meta["preprocessing"]["input_width"] == 40
+    assert loaded_meta["preprocessing"]["state_frame"] == kw.get("state_frame", "world")
+    assert loaded_meta["output"]["num_ctrl_pts"] == 10
+    extra = {META_FILE: ""}
+    torch.jit.load(str(path), _extra_files=extra)
+    assert json.loads(extra[META_FILE])["format"] == "quad_il_policy/1"
+
+
+def test_loading_a_file_that_is_not_a_policy_export_fails_clearly(tmp_path: Path) -> None:
+    path = tmp_path / "plain.ts"
+    torch.jit.save(torch.jit.script(torch.nn.Linear(2, 2)), str(path))
+    with pytest.raises(ValueError, match="not a quad_il policy export"):
+        load_exported(path)
+    with pytest.raises(FileNotFoundError):
+        load_exported(tmp_path / "missing.ts")
+
+
+def test_network_output_is_deterministic_for_a_seed() -> None:
+    outs = []
+    for _ in range(2):
+        torch.manual_seed(11)
+        policy = build_policy(ModelConfig(input_height=32, input_width=32), 10, 2.0).eval()
+        with torch.no_grad():
+            outs.append(policy.net(torch.ones(1, 1, 32, 32), torch.ones(1, 13)))
+    assert torch.equal(outs[0], outs[1])
+    assert np.isfinite(outs[0].numpy()).all()
