@@ -1,0 +1,345 @@
+// kr_tracker_node: manages the hover, line and B-spline trackers and runs the SO(3) controller (thin ROS
+// adapter over kr_tracker_core; topics and the lockstep protocol in docs/CONVENTIONS.md, behaviour in
+// docs/kr_tracker.md).
+//
+// One SO3Command (and PositionCommand) per odometry message, stamped with the odometry's stamp, so the
+// simulator's lockstep can wait for exactly that command. If odometry goes stale (older than
+// node.odom_timeout_s in ROS time) a watchdog keeps publishing the safe hover command (weight-compensating
+// thrust, level attitude, last yaw).
+#include <actionlib/server/action_server.h>
+#include <nav_msgs/Odometry.h>
+#include <quad_msgs/Goto.h>
+#include <quad_msgs/PositionCommand.h>
+#include <quad_msgs/SO3Command.h>
+#include <quad_msgs/SwitchTracker.h>
+#include <quad_msgs/TrackBsplineAction.h>
+#include <quad_sim/vehicle_params.h>
+#include <ros/ros.h>
+
+#include <algorithm>
+#include <map>
+#include <stdexcept>
+#include <string>
+
+#include "kr_tracker/bspline_tracker.h"
+#include "kr_tracker/config.h"
+#include "kr_tracker/line_tracker.h"
+#include "kr_tracker/so3_controller.h"
+
+namespace kr_tracker {
+namespace {
+
+using TrackServer = actionlib::ActionServer<quad_msgs::TrackBsplineAction>;
+using GoalHandle = TrackServer::GoalHandle;
+
+VehicleState FromOdometry(const nav_msgs::Odometry& m) {
+  VehicleState s;
+  s.t_s = m.header.stamp.toSec();
+  const auto& p = m.pose.pose.position;
+  const auto& q = m.pose.pose.orientation;
+  s.p_world_body = Eigen::Vector3d(p.x, p.y, p.z);
+  s.q_world_body = Eigen::Quaterniond(q.w, q.x, q.y, q.z);
+  // CONVENTIONS.md: the twist of /odom is in the world frame.
+  s.v_world = Eigen::Vector3d(m.twist.twist.linear.x, m.twist.twist.linear.y, m.twist.twist.linear.z);
+  s.w_body = Eigen::Vector3d(m.twist.twist.angular.x, m.twist.twist.angular.y, m.twist.twist.angular.z);
+  return s;
+}
+
+void ToVector3(const Eigen::Vector3d& v, geometry_msgs::Vector3* m) {
+  m->x = v.x();
+  m->y = v.y();
+  m->z = v.z();
+}
+
+BsplineGoalSpec ToSpec(const quad_msgs::Bspline& b) {
+  BsplineGoalSpec s;
+  s.order = b.order;
+  s.traj_id = b.traj_id;
+  s.start_time_s = b.start_time.toSec();
+  s.knots = b.knots;
+  s.pos_pts.resize(static_cast<Eigen::Index>(b.pos_pts.size()), 3);
+  for (size_t i = 0; i < b.pos_pts.size(); ++i) {
+    s.pos_pts.row(static_cast<Eigen::Index>(i)) << b.pos_pts[i].x, b.pos_pts[i].y, b.pos_pts[i].z;
+  }
+  s.yaw_pts = b.yaw_pts;
+  s.yaw_dt_s = b.yaw_dt;
+  return s;
+}
+
+class TrackerNode {
+ public:
+  TrackerNode(ros::NodeHandle nh, ros::NodeHandle pnh)
+      : nh_(nh),
+        config_(LoadTrackerConfig(RequiredParam(pnh, "tracker_config"))),
+        vehicle_(quad_sim::LoadVehicleParams(RequiredParam(pnh, "vehicle_config"))),
+        controller_(config_.gains, vehicle_.mass_kg, vehicle_.gravity_mps2, vehicle_.MaxThrustN()),
+        line_(config_.line),
+        bspline_(config_.bspline),
+        server_(nh, "tracker/track_bspline", false) {
+    trackers_ = {{"hover", &hover_}, {"line", &line_}, {"bspline", &bspline_}};
+    so3_pub_ = nh_.advertise<quad_msgs::SO3Command>("so3_cmd", 10);
+    pos_pub_ = nh_.advertise<quad_msgs::PositionCommand>("position_cmd", 10);
+    odom_sub_ = nh_.subscribe("odom", 10, &TrackerNode::OnOdom, this, ros::TransportHints().tcpNoDelay());
+    switch_srv_ = nh_.advertiseService("tracker/switch", &TrackerNode::OnSwitch, this);
+    goto_srv_ = nh_.advertiseService("tracker/goto", &TrackerNode::OnGoto, this);
+    server_.registerGoalCallback([this](GoalHandle gh) { OnGoal(gh); });
+    server_.registerCancelCallback([this](GoalHandle gh) { OnCancel(gh); });
+    server_.start();
+    watchdog_ = nh_.createTimer(ros::Duration(1.0 / config_.watchdog_rate_hz),
+                                [this](const ros::TimerEvent&) { OnWatchdog(); });
+    safe_command_ = controller_.HoverCommand(0.0);
+    ROS_INFO(
+        "kr_tracker: mass %.3f kg, g %.3f m/s^2 (vehicle config), kx [%.2f %.2f %.2f], kv [%.2f %.2f %.2f]",
+        vehicle_.mass_kg, vehicle_.gravity_mps2, config_.gains.kx.x(), config_.gains.kx.y(),
+        config_.gains.kx.z(), config_.gains.kv.x(), config_.gains.kv.y(), config_.gains.kv.z());
+  }
+
+ private:
+  static std::string RequiredParam(const ros::NodeHandle& pnh, const std::string& name) {
+    std::string value;
+    if (!pnh.getParam(name, value) || value.empty()) {
+      throw std::runtime_error("kr_tracker_node: required parameter ~" + name + " (a YAML path) is not set");
+    }
+    return value;
+  }
+
+  void OnOdom(const nav_msgs::Odometry::ConstPtr& msg) {
+    const VehicleState state = FromOdometry(*msg);
+    if (!state.AllFinite()) {
+      ROS_WARN_THROTTLE(1.0, "kr_tracker: non-finite odometry skipped; holding the safe command");
+      // Still answer this odometry stamp, so a lockstepped simulator does not stall.
+      Publish(safe_command_, last_ref_, msg->header.stamp);
+      return;
+    }
+    const double dt = have_odom_ ? std::clamp(state.t_s - last_state_.t_s, 0.0, 0.1) : 0.0;
+    if (have_odom_ && state.t_s <= last_state_.t_s) {
+      ROS_WARN_THROTTLE(1.0, "kr_tracker: odometry stamp did not advance (%.4f after %.4f)", state.t_s,
+                        last_state_.t_s);
+    }
+    last_state_ = state;
+    last_odom_rx_ = ros::Time::now();
+    if (stale_) ROS_INFO("kr_tracker: odometry is back");
+    stale_ = false;
+    if (!have_odom_) {
+      have_odom_ = true;
+      last_ref_ = PositionReference::Hold(state.p_world_body, state.Yaw());
+      active_ = trackers_.at(config_.initial_tracker);
+      active_->Activate(last_ref_, state);
+      ROS_INFO("kr_tracker: first odometry at (%.2f, %.2f, %.2f); tracker '%s' active",
+               state.p_world_body.x(), state.p_world_body.y(), state.p_world_body.z(),
+               active_->name().c_str());
+    }
+    const PositionReference ref = active_->Update(state);
+    const ControlOutput out = controller_.Compute(ref, state, dt);
+    if (out.status != ControlStatus::kOk) {
+      ROS_WARN_THROTTLE(1.0, "kr_tracker: %s", ToString(out.status));
+    } else {
+      last_ref_ = ref;
+      safe_command_ = controller_.HoverCommand(ref.yaw_rad);
+    }
+    Publish(out.command, ref, msg->header.stamp);
+    ProcessEvents();
+    if (const auto id = bspline_.running_goal(); id && state.t_s >= next_feedback_s_) {
+      next_feedback_s_ = state.t_s + 1.0 / config_.feedback_rate_hz;
+      const auto it = goals_.find(*id);
+      if (it != goals_.end()) {
+        quad_msgs::TrackBsplineFeedback fb;
+        fb.remaining_time_s = bspline_.RemainingTime(state.t_s);
+        it->second.publishFeedback(fb);
+      }
+    }
+  }
+
+  void OnWatchdog() {
+    if (!have_odom_) return;
+    const ros::Time now = ros::Time::now();
+    if ((now - last_odom_rx_).toSec() <= config_.odom_timeout_s) return;
+    if (!stale_) {
+      ROS_WARN("kr_tracker: odometry stale (%.3f s > %.3f s): holding the safe hover command",
+               (now - last_odom_rx_).toSec(), config_.odom_timeout_s);
+    }
+    stale_ = true;
+    Publish(safe_command_, last_ref_, now);
+  }
+
+  void Publish(const So3Command& c, const PositionReference& ref, const ros::Time& stamp) {
+    quad_msgs::SO3Command m;
+    m.header.stamp = stamp;
+    m.header.frame_id = "world";
+    ToVector3(c.force_world_N, &m.force);
+    m.orientation.w = c.q_world_des.w();
+    m.orientation.x = c.q_world_des.x();
+    m.orientation.y = c.q_world_des.y();
+    m.orientation.z = c.q_world_des.z();
+    ToVector3(c.w_body_des_radps, &m.angular_velocity);
+    for (int i = 0; i < 3; ++i) {
+      m.kR[i] = c.kR[i];
+      m.kOm[i] = c.kOm[i];
+    }
+    m.aux.current_yaw = last_state_.Yaw();
+    m.aux.kf_correction = 0.0;
+    m.aux.enable_motors = c.enable_motors;
+    m.aux.use_external_yaw = false;
+    so3_pub_.publish(m);
+
+    quad_msgs::PositionCommand p;
+    p.header = m.header;
+    p.position.x = ref.p_world.x();
+    p.position.y = ref.p_world.y();
+    p.position.z = ref.p_world.z();
+    ToVector3(ref.v_world, &p.velocity);
+    ToVector3(ref.a_world, &p.acceleration);
+    ToVector3(ref.j_world, &p.jerk);
+    p.yaw = ref.yaw_rad;
+    p.yaw_dot = ref.yaw_rate_radps;
+    for (int i = 0; i < 3; ++i) {
+      p.kx[i] = config_.gains.kx[i];
+      p.kv[i] = config_.gains.kv[i];
+    }
+    p.use_msg_gains_flags = quad_msgs::PositionCommand::USE_MSG_GAINS_NONE;
+    pos_pub_.publish(p);
+  }
+
+  std::string SwitchTo(Tracker* next) {
+    if (!have_odom_) return "no odometry received yet";
+    if (next == active_) return "";
+    active_->Deactivate();
+    next->Activate(last_ref_, last_state_);
+    ROS_INFO("kr_tracker: switched from '%s' to '%s'", active_->name().c_str(), next->name().c_str());
+    active_ = next;
+    ProcessEvents();
+    return "";
+  }
+
+  bool OnSwitch(quad_msgs::SwitchTracker::Request& req, quad_msgs::SwitchTracker::Response& res) {
+    const auto it = trackers_.find(req.tracker);
+    if (it == trackers_.end()) {
+      res.success = false;
+      res.message = "unknown tracker '" + req.tracker + "' (hover, line, bspline)";
+    } else {
+      const std::string why = SwitchTo(it->second);
+      res.success = why.empty();
+      res.message = why.empty() ? "active tracker: " + req.tracker : why;
+    }
+    if (!res.success) ROS_WARN("kr_tracker: switch refused: %s", res.message.c_str());
+    return true;
+  }
+
+  bool OnGoto(quad_msgs::Goto::Request& req, quad_msgs::Goto::Response& res) {
+    std::string why = have_odom_ ? "" : "no odometry received yet";
+    if (why.empty()) {
+      why = line_.SetGoal(Eigen::Vector3d(req.position.x, req.position.y, req.position.z), req.yaw,
+                          req.max_vel_mps, req.max_acc_mps2);
+    }
+    if (why.empty()) why = SwitchTo(&line_);
+    res.success = why.empty();
+    res.message = why.empty() ? "flying to the goal with the line tracker" : why;
+    if (!res.success) ROS_WARN("kr_tracker: goto refused: %s", why.c_str());
+    return true;
+  }
+
+  void OnGoal(GoalHandle gh) {
+    const auto goal = gh.getGoal();
+    std::string why = have_odom_ ? "" : "no odometry received yet";
+    const uint64_t id = next_goal_id_++;
+    if (why.empty()) why = bspline_.AddGoal(id, ToSpec(goal->bspline), ros::Time::now().toSec(), last_state_);
+    if (!why.empty()) {
+      quad_msgs::TrackBsplineResult r;
+      r.success = false;
+      r.reason = "rejected: " + why;
+      ROS_WARN("kr_tracker: B-spline goal (traj_id %ld) rejected: %s",
+               static_cast<long>(goal->bspline.traj_id), why.c_str());
+      gh.setRejected(r, r.reason);
+      return;
+    }
+    gh.setAccepted();
+    goals_.emplace(id, gh);
+    if (config_.bspline_auto_activate && active_ != &bspline_) SwitchTo(&bspline_);
+    ProcessEvents();
+  }
+
+  void OnCancel(GoalHandle gh) {
+    for (const auto& [id, handle] : goals_) {
+      if (handle == gh) {
+        bspline_.Cancel(id);
+        break;
+      }
+    }
+    ProcessEvents();
+  }
+
+  // Maps the B-spline tracker's goal events onto the action's goal handles.
+  void ProcessEvents() {
+    for (const GoalEvent& e : bspline_.TakeEvents()) {
+      const auto it = goals_.find(e.goal_id);
+      if (it == goals_.end()) continue;
+      if (e.kind == GoalEventKind::kStarted) {
+        ROS_DEBUG("kr_tracker: B-spline goal %lu started", static_cast<unsigned long>(e.goal_id));
+        continue;
+      }
+      quad_msgs::TrackBsplineResult r;
+      r.success = e.kind == GoalEventKind::kSucceeded;
+      r.total_time_s = e.total_time_s;
+      r.distance_travelled_m = e.distance_travelled_m;
+      r.reason = e.reason;
+      // Replacements happen at every replan: debug level; the other outcomes are worth a line.
+      const bool routine = e.kind == GoalEventKind::kReplaced;
+      ROS_LOG(routine ? ros::console::levels::Debug : ros::console::levels::Info, ROSCONSOLE_DEFAULT_NAME,
+              "kr_tracker: B-spline goal %lu %s after %.2f s, %.2f m%s%s",
+              static_cast<unsigned long>(e.goal_id), ToString(e.kind), e.total_time_s, e.distance_travelled_m,
+              e.reason.empty() ? "" : ": ", e.reason.c_str());
+      switch (e.kind) {
+        case GoalEventKind::kSucceeded:
+          it->second.setSucceeded(r, "");
+          break;
+        case GoalEventKind::kReplaced:
+        case GoalEventKind::kCanceled:
+          it->second.setCanceled(r, e.reason);
+          break;
+        default:
+          it->second.setAborted(r, e.reason);
+          break;
+      }
+      goals_.erase(it);
+    }
+  }
+
+  ros::NodeHandle nh_;
+  TrackerConfig config_;
+  quad_sim::VehicleParams vehicle_;
+  So3Controller controller_;
+  HoverTracker hover_;
+  LineTracker line_;
+  BsplineTracker bspline_;
+  std::map<std::string, Tracker*> trackers_;
+  Tracker* active_ = nullptr;
+  TrackServer server_;
+  std::map<uint64_t, GoalHandle> goals_;
+  uint64_t next_goal_id_ = 1;
+  ros::Publisher so3_pub_, pos_pub_;
+  ros::Subscriber odom_sub_;
+  ros::ServiceServer switch_srv_, goto_srv_;
+  ros::Timer watchdog_;
+  bool have_odom_ = false;
+  bool stale_ = false;
+  VehicleState last_state_;
+  ros::Time last_odom_rx_;
+  PositionReference last_ref_;
+  So3Command safe_command_;
+  double next_feedback_s_ = 0.0;
+};
+
+}  // namespace
+}  // namespace kr_tracker
+
+int main(int argc, char** argv) {
+  ros::init(argc, argv, "kr_tracker");
+  try {
+    kr_tracker::TrackerNode node(ros::NodeHandle(), ros::NodeHandle("~"));
+    ros::spin();
+  } catch (const std::exception& e) {
+    ROS_FATAL("kr_tracker: %s", e.what());
+    return 1;
+  }
+  return 0;
+}

@@ -1,0 +1,65 @@
+// tracker.yaml loads into the typed config; missing, unknown and out-of-range keys are errors naming the key.
+#include <gtest/gtest.h>
+
+#include <fstream>
+#include <sstream>
+
+#include <quad_common/strict_yaml.h>
+
+#include "kr_tracker/config.h"
+
+namespace kr_tracker {
+namespace {
+
+std::string ReadRepoConfig() {
+  std::ifstream f(KR_TRACKER_CONFIG_DIR "/tracker.yaml");
+  std::stringstream s;
+  s << f.rdbuf();
+  return s.str();
+}
+
+std::string LoadError(const std::string& text) {
+  quad_common::StrictYaml y = quad_common::StrictYaml::FromString(text, "tracker.yaml");
+  try {
+    ReadTrackerConfig(&y);
+  } catch (const quad_common::ConfigError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+std::string Replace(std::string text, const std::string& from, const std::string& to) {
+  const size_t pos = text.find(from);
+  EXPECT_NE(pos, std::string::npos) << from;
+  return text.replace(pos, from.size(), to);
+}
+
+TEST(TrackerConfig, RepositoryFileLoadsWithKrMavControlDefaultGains) {
+  const TrackerConfig c = LoadTrackerConfig(KR_TRACKER_CONFIG_DIR "/tracker.yaml");
+  EXPECT_TRUE(c.gains.kx.isApprox(Eigen::Vector3d(7.4, 7.4, 10.4)));
+  EXPECT_TRUE(c.gains.kv.isApprox(Eigen::Vector3d(4.8, 4.8, 6.0)));
+  EXPECT_TRUE(c.gains.kR.isApprox(Eigen::Vector3d(1.5, 1.5, 1.0)));
+  EXPECT_TRUE(c.gains.kOm.isApprox(Eigen::Vector3d(0.13, 0.13, 0.1)));
+  EXPECT_EQ(c.initial_tracker, "hover");
+}
+
+TEST(TrackerConfig, MissingUnknownAndOutOfRangeKeysAreNamed) {
+  const std::string base = ReadRepoConfig();
+  EXPECT_EQ(LoadError(base), "");
+  EXPECT_NE(LoadError(Replace(base, "  kOm: [", "  kOmega: [")).find("missing required key 'controller.kOm'"),
+            std::string::npos);
+  EXPECT_NE(LoadError(base + "extra_key: 1\n").find("unknown config key(s): 'extra_key'"), std::string::npos);
+  EXPECT_NE(LoadError(Replace(base, "kx: [7.4, 7.4, 10.4]", "kx: [7.4, 7.4]"))
+                .find("key 'controller.kx' has 2 elements, expected 3"),
+            std::string::npos);
+  EXPECT_NE(LoadError(Replace(base, "kv: [4.8, 4.8, 6.0]", "kv: [4.8, -4.8, 6.0]")).find("controller.kv"),
+            std::string::npos);
+  EXPECT_NE(LoadError(Replace(base, "odom_timeout_s: 0.1", "odom_timeout_s: 0")).find("node.odom_timeout_s"),
+            std::string::npos);
+  EXPECT_NE(LoadError(Replace(base, "initial_tracker: hover", "initial_tracker: mpc"))
+                .find("'node.initial_tracker' has value 'mpc'"),
+            std::string::npos);
+}
+
+}  // namespace
+}  // namespace kr_tracker
