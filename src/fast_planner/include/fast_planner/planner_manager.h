@@ -1,0 +1,167 @@
+// The planner manager: owns the map and ESDF, runs front end -> fit -> optimisation -> time re-allocation ->
+// final collision check for one plan, and tells an optional observer (the data collector of issue 6) about
+// every successful plan with the exact inputs it used.
+#pragma once
+
+#include <kr_tracker/bspline.h>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include <memory>
+#include <optional>
+#include <string>
+
+#include "fast_planner/bspline_optimizer.h"
+#include "fast_planner/esdf.h"
+#include "fast_planner/kinodynamic_astar.h"
+#include "fast_planner/planner_config.h"
+#include "fast_planner/voxel_map.h"
+
+namespace fast_planner {
+
+// Odometry as the planner uses it (nav_msgs/Odometry without ROS): world frame, twist in the world frame.
+struct Odometry {
+  double stamp_s = 0.0;
+  Eigen::Vector3d p_world_body = Eigen::Vector3d::Zero();
+  Eigen::Quaterniond q_world_body = Eigen::Quaterniond::Identity();
+  Eigen::Vector3d v_world = Eigen::Vector3d::Zero();
+  Eigen::Vector3d w_body = Eigen::Vector3d::Zero();
+};
+// "" when every field is finite and the quaternion is not zero, else the reason.
+std::string ValidateOdometry(const Odometry& odom);
+
+enum class PlanStatus {
+  kSuccess,
+  kMapNotReady,            // no depth frame yet (depth source) or no map yet (global source)
+  kInvalidStart,           // non-finite, outside the map or inside an obstacle
+  kInvalidGoal,            // non-finite, outside the map, inside or too close to an obstacle
+  kFrontEndFailed,         // no path, node budget, ...: the reason has the search status
+  kTrajectoryInCollision,  // every optimised (and the fitted) trajectory hit the inflated map
+};
+const char* ToString(PlanStatus status);
+
+struct PlanRequest {
+  Eigen::Vector3d start_p = Eigen::Vector3d::Zero();
+  Eigen::Vector3d start_v = Eigen::Vector3d::Zero();
+  Eigen::Vector3d start_a = Eigen::Vector3d::Zero();
+  Eigen::Vector3d goal = Eigen::Vector3d::Zero();
+  double start_time_s = 0.0;  // when the start state is flown: the trajectory's t = 0
+};
+
+// Milliseconds of the planning thread's CPU time (not wall time, which on a shared machine also counts other
+// processes' turns on the core).
+struct PlanTimings {
+  double frontend_ms = 0.0;
+  double optimization_ms = 0.0;  // fit + NLopt (all attempts)
+  double reallocation_ms = 0.0;  // time re-allocation (all attempts)
+  double check_ms = 0.0;         // final collision checks (all attempts)
+  double total_ms = 0.0;         // the whole Plan() call
+};
+
+struct PlanResult {
+  PlanStatus status = PlanStatus::kInvalidStart;
+  std::string reason;  // "success" or why not, printable
+  int64_t traj_id = 0;
+  double start_time_s = 0.0;
+  // The trajectory (degree 3, t = 0 at start_time_s); set exactly when status == kSuccess.
+  std::optional<kr_tracker::NonUniformBspline> spline;
+  bool reaches_goal = false;     // ends at the goal at rest (else at the search horizon or a safe stop)
+  bool ends_at_rest = false;     // at the goal, at a safe stop short of it, or an emergency stop
+  bool start_state_kept = true;  // time re-allocation kept the start state exactly (see time_reallocation.h)
+  SearchStatus search_status = SearchStatus::kNoPath;
+  PolyPath frontend_path;
+  Eigen::MatrixXd initial_ctrl_pts;  // the fit before optimisation (for visualisation)
+  int optimizer_evaluations = 0;
+  int attempts = 0;  // optimisation attempts (1 + collision retries; + 1 for the fitted fallback)
+  PlanTimings timings;
+  bool ok() const { return status == PlanStatus::kSuccess; }
+};
+
+// What the data collector receives right after each successful plan: exactly what the plan used.
+struct PlanRecord {
+  std::shared_ptr<const DepthFrame> depth;  // the last depth frame received before the plan (null if none)
+  std::optional<Odometry> odometry;         // the last odometry received before the plan
+  Eigen::Vector3d goal = Eigen::Vector3d::Zero();
+  PlanRequest request;
+  const PlanResult* result = nullptr;  // valid during the callback only
+};
+
+class PlanObserver {
+ public:
+  virtual ~PlanObserver() = default;
+  // Called on the planning thread right after a successful plan; must be quick (the collector queues it).
+  virtual void OnPlan(const PlanRecord& record) = 0;
+};
+
+// Milliseconds of CPU time, as PlanTimings.
+struct MapUpdateResult {
+  MapUpdateStats stats;
+  double integrate_ms = 0.0;
+  double esdf_ms = 0.0;
+  double total_ms = 0.0;
+};
+
+class PlannerManager {
+ public:
+  // Throws quad_common::ConfigError on an invalid configuration.
+  explicit PlannerManager(const PlannerConfig& cfg);
+
+  // Forgets the map, the last observations and the trajectory ids (a new episode).
+  void Reset();
+
+  // Depth source: integrates the frame and recomputes the ESDF in the local window around the camera. Global
+  // source: only remembers the frame (for the observer). Throws std::invalid_argument on a malformed frame.
+  MapUpdateResult UpdateDepth(std::shared_ptr<const DepthFrame> frame);
+  // Remembers the odometry (for the observer). Throws std::invalid_argument on non-finite odometry.
+  void UpdateOdometry(const Odometry& odom);
+  // Global source: marks the simulator's occupied voxels (world points); the ESDF is computed when planning.
+  void SetGlobalMap(const std::vector<Eigen::Vector3d>& occupied_points_world);
+
+  // Whether Plan() has a map to plan on: a depth frame (depth source) or the global map (global source).
+  bool MapReady() const;
+
+  // Why this goal cannot be planned to ("" if it can): non-finite, outside the map, in or near an obstacle.
+  std::string CheckGoal(const Eigen::Vector3d& goal) const;
+
+  PlanResult Plan(const PlanRequest& request);
+
+  // A braking trajectory from (p, v, a) to rest along the current direction of motion at the acceleration
+  // limit (the emergency stop). Never fails; the result starts at start_time_s.
+  PlanResult PlanStop(const Eigen::Vector3d& p, const Eigen::Vector3d& v, const Eigen::Vector3d& a,
+                      double start_time_s);
+
+  // The first time t in [t_from, tmax] (spline time) at which the trajectory enters the inflated map, sampled
+  // every optimizer.check_step_m of arc length; samples within the escape radius of escape_center may be
+  // inflated but not occupied (leaving an inflated start). nullopt if it stays free.
+  std::optional<double> FirstCollision(const kr_tracker::NonUniformBspline& spline, double t_from,
+                                       const Eigen::Vector3d& escape_center) const;
+
+  void SetObserver(std::shared_ptr<PlanObserver> observer) { observer_ = std::move(observer); }
+
+  const PlannerConfig& config() const { return cfg_; }
+  const VoxelMap& map() const { return map_; }
+  const Esdf& esdf() const { return esdf_; }
+  std::shared_ptr<const DepthFrame> last_depth() const { return last_depth_; }
+  const std::optional<Odometry>& last_odometry() const { return last_odom_; }
+
+ private:
+  // Makes sure the ESDF covers the box around both points (global source).
+  void EnsureEsdfCovers(const Eigen::Vector3d& a, const Eigen::Vector3d& b);
+  double EscapeRadius(const Eigen::Vector3d& start) const;
+  PlanResult Fail(PlanStatus status, const std::string& reason, const PlanRequest& request,
+                  double t0_ms) const;
+
+  PlannerConfig cfg_;
+  VoxelMap map_;
+  Esdf esdf_;
+  KinodynamicAstar search_;
+  BsplineOptimizer optimizer_;
+  bool global_map_set_ = false;
+  std::shared_ptr<const DepthFrame> last_depth_;
+  std::optional<Odometry> last_odom_;
+  std::shared_ptr<PlanObserver> observer_;
+  int64_t next_traj_id_ = 1;
+};
+
+}  // namespace fast_planner

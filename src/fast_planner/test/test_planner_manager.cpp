@@ -1,0 +1,282 @@
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+#include <memory>
+#include <vector>
+
+#include "fast_planner/planner_manager.h"
+#include "test_util.h"
+
+namespace fast_planner {
+namespace {
+
+Eigen::Vector3d V3(const Eigen::VectorXd& v) { return Eigen::Vector3d(v[0], v[1], v[2]); }
+
+// Points at the voxel centres of an axis-aligned box (the simulator's voxel map format).
+std::vector<Eigen::Vector3d> BoxPoints(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, double r = 0.1) {
+  std::vector<Eigen::Vector3d> pts;
+  for (double x = lo.x() + 0.5 * r; x < hi.x(); x += r) {
+    for (double y = lo.y() + 0.5 * r; y < hi.y(); y += r) {
+      for (double z = lo.z() + 0.5 * r; z < hi.z(); z += r) pts.emplace_back(x, y, z);
+    }
+  }
+  return pts;
+}
+
+PlannerConfig GlobalConfig() {
+  PlannerConfig c;
+  c.map = test::SmallMapConfig(Eigen::Vector3d(20.0, 10.0, 4.0), 0.1, 0.3, 0.0, 4.0);
+  c.map.source = MapSource::kGlobal;
+  c.map.local_update_range_m = Eigen::Vector3d(4.0, 4.0, 2.0);
+  return c;
+}
+
+struct SplineStats {
+  double max_speed = 0.0;
+  double max_acc = 0.0;
+  double min_clearance = std::numeric_limits<double>::infinity();  // ESDF at samples
+  bool enters_inflation = false;
+};
+
+SplineStats Sample(const kr_tracker::NonUniformBspline& s, const PlannerManager& m) {
+  SplineStats st;
+  const auto vel = s.Derivative();
+  const auto acc = s.Derivative(2);
+  for (double t = s.tmin(); t <= s.tmax(); t += 0.002) {
+    st.max_speed = std::max(st.max_speed, vel.Evaluate(t).norm());
+    st.max_acc = std::max(st.max_acc, acc.Evaluate(t).norm());
+    const Eigen::Vector3d p = V3(s.Evaluate(t));
+    st.enters_inflation |= m.map().IsInflated(p);
+  }
+  return st;
+}
+
+TEST(PlannerManagerTest, OpenSpacePlanStartsAtTheStateAndEndsAtTheGoalWithinLimits) {
+  PlannerManager m(GlobalConfig());
+  m.SetGlobalMap({});
+  PlanRequest req;
+  req.start_p = Eigen::Vector3d(2.0, 5.0, 1.5);
+  req.goal = Eigen::Vector3d(12.0, 4.0, 2.0);
+  req.start_time_s = 3.25;
+  const PlanResult r = m.Plan(req);
+  ASSERT_TRUE(r.ok()) << r.reason;
+  EXPECT_TRUE(r.reaches_goal);
+  EXPECT_EQ(r.traj_id, 1);
+  EXPECT_EQ(r.start_time_s, 3.25);
+  const auto& s = *r.spline;
+  EXPECT_EQ(s.order(), 3);
+  EXPECT_EQ(s.tmin(), 0.0);
+  EXPECT_LT((V3(s.Evaluate(0.0)) - req.start_p).norm(), 1e-9);
+  EXPECT_LT(V3(s.Derivative().Evaluate(0.0)).norm(), 1e-9);
+  EXPECT_LT((V3(s.Evaluate(s.tmax())) - req.goal).norm(), 1e-9);
+  EXPECT_LT(V3(s.Derivative().Evaluate(s.tmax())).norm(), 1e-9);
+  const SplineStats st = Sample(s, m);
+  EXPECT_LE(st.max_speed, 3.0 + 1e-6);
+  EXPECT_LE(st.max_acc, 2.0 + 1e-6);
+  EXPECT_FALSE(st.enters_inflation);
+  EXPECT_GT(r.timings.total_ms, 0.0);
+  EXPECT_GE(r.timings.total_ms, r.timings.frontend_ms + r.timings.optimization_ms);
+  EXPECT_EQ(r.reason.rfind("success: reached goal", 0), 0u) << r.reason;
+}
+
+TEST(PlannerManagerTest, WallGivesASafeDetourAndTheOptimiserKeepsItsDistance) {
+  PlannerManager m(GlobalConfig());
+  m.SetGlobalMap(BoxPoints(Eigen::Vector3d(6.0, 2.0, 0.0), Eigen::Vector3d(6.4, 8.0, 4.0)));
+  PlanRequest req;
+  req.start_p = Eigen::Vector3d(3.0, 5.0, 1.5);
+  req.goal = Eigen::Vector3d(9.0, 5.0, 1.5);
+  const PlanResult r = m.Plan(req);
+  ASSERT_TRUE(r.ok()) << r.reason;
+  const SplineStats st = Sample(*r.spline, m);
+  EXPECT_FALSE(st.enters_inflation);
+  EXPECT_LE(st.max_speed, 3.0 + 1e-6);
+  EXPECT_LE(st.max_acc, 2.0 + 1e-6);
+  double min_d = 1e9;
+  for (double t = 0.0; t <= r.spline->tmax(); t += 0.01)
+    min_d = std::min(min_d, m.esdf().Distance(V3(r.spline->Evaluate(t))));
+  EXPECT_GT(min_d, 0.35);
+}
+
+TEST(PlannerManagerTest, ThinWallIsNeverCrossed) {
+  PlannerManager m(GlobalConfig());
+  m.SetGlobalMap(BoxPoints(Eigen::Vector3d(6.0, 0.0, 0.0), Eigen::Vector3d(6.1, 8.0, 4.0)));
+  PlanRequest req;
+  req.start_p = Eigen::Vector3d(3.0, 5.0, 1.5);
+  req.start_v = Eigen::Vector3d(2.5, 0.0, 0.0);
+  req.goal = Eigen::Vector3d(9.0, 5.0, 1.5);
+  const PlanResult r = m.Plan(req);
+  ASSERT_TRUE(r.ok()) << r.reason;
+  const auto& s = *r.spline;
+  for (double t = 0.0; t + 1e-3 <= s.tmax(); t += 1e-3) {
+    const Eigen::Vector3d a = V3(s.Evaluate(t)), b = V3(s.Evaluate(t + 1e-3));
+    if ((a.x() - 6.05) * (b.x() - 6.05) <= 0.0) {
+      ASSERT_GT(a.y(), 8.3) << "crossed the thin wall at " << a.transpose();
+    }
+  }
+  EXPECT_FALSE(Sample(s, m).enters_inflation);
+}
+
+TEST(PlannerManagerTest, ReplanFromAMovingStateContinuesItsPositionVelocityAndAcceleration) {
+  PlannerManager m(GlobalConfig());
+  m.SetGlobalMap(BoxPoints(Eigen::Vector3d(9.0, 3.0, 0.0), Eigen::Vector3d(10.0, 6.0, 4.0)));
+  PlanRequest req;
+  req.start_p = Eigen::Vector3d(3.0, 5.0, 1.5);
+  req.start_v = Eigen::Vector3d(2.0, 0.5, 0.0);
+  req.start_a = Eigen::Vector3d(0.3, -0.4, 0.2);
+  req.goal = Eigen::Vector3d(14.0, 5.0, 1.5);
+  const PlanResult r = m.Plan(req);
+  ASSERT_TRUE(r.ok()) << r.reason;
+  const auto& s = *r.spline;
+  EXPECT_LT((V3(s.Evaluate(0.0)) - req.start_p).norm(), 0.01);
+  EXPECT_LT((V3(s.Derivative().Evaluate(0.0)) - req.start_v).norm(), 0.05);
+  EXPECT_LT((V3(s.Derivative(2).Evaluate(0.0)) - req.start_a).norm(), 0.2);
+  const SplineStats st = Sample(s, m);
+  EXPECT_FALSE(st.enters_inflation);
+  EXPECT_LE(st.max_speed, 3.0 + 1e-6);
+  EXPECT_LE(st.max_acc, 2.0 + 1e-6);
+}
+
+TEST(PlannerManagerTest, BadGoalsAndStartsAreRejectedWithTheReason) {
+  PlannerManager m(GlobalConfig());
+  m.SetGlobalMap(BoxPoints(Eigen::Vector3d(9.0, 3.0, 0.0), Eigen::Vector3d(10.0, 6.0, 4.0)));
+  PlanRequest req;
+  req.start_p = Eigen::Vector3d(3.0, 5.0, 1.5);
+  req.goal = Eigen::Vector3d(9.5, 4.5, 1.5);
+  PlanResult r = m.Plan(req);
+  EXPECT_EQ(r.status, PlanStatus::kInvalidGoal);
+  EXPECT_EQ(r.reason,
+            "invalid goal: goal is inside an obstacle (or at/below the ground or at/above the ceiling)");
+  EXPECT_FALSE(r.spline.has_value());
+  req.goal = Eigen::Vector3d(10.2, 4.5, 1.5);
+  EXPECT_EQ(m.Plan(req).reason, "invalid goal: goal is within 0.3 m of an obstacle (or the ground/ceiling)");
+  req.goal = Eigen::Vector3d(30.0, 4.5, 1.5);
+  r = m.Plan(req);
+  EXPECT_EQ(r.status, PlanStatus::kInvalidGoal);
+  EXPECT_NE(r.reason.find("is outside the map"), std::string::npos) << r.reason;
+  req.goal = Eigen::Vector3d(5.0, 4.5, -0.5);
+  EXPECT_EQ(m.Plan(req).status, PlanStatus::kInvalidGoal);
+  req.goal = Eigen::Vector3d(5.0, 4.5, 1.5);
+  req.start_v.x() = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_EQ(m.Plan(req).reason, "invalid start: start state is not finite");
+  req.start_v.setZero();
+  req.start_p = Eigen::Vector3d(9.5, 4.5, 1.5);
+  EXPECT_EQ(m.Plan(req).reason, "invalid start: start is inside an obstacle");
+}
+
+TEST(PlannerManagerTest, EnclosedGoalFailsInTheFrontEndWithItsReason) {
+  PlannerConfig c = GlobalConfig();
+  c.search.max_nodes = 2000;
+  PlannerManager m(c);
+  std::vector<Eigen::Vector3d> pts;
+  for (const auto& [lo, hi] :
+       std::vector<std::pair<Eigen::Vector3d, Eigen::Vector3d>>{{{6, 3, 0.5}, {9, 7, 0.7}},
+                                                                {{6, 3, 2.8}, {9, 7, 3.0}},
+                                                                {{6, 3, 0.5}, {6.2, 7, 3}},
+                                                                {{8.8, 3, 0.5}, {9, 7, 3}},
+                                                                {{6, 3, 0.5}, {9, 3.2, 3}},
+                                                                {{6, 6.8, 0.5}, {9, 7, 3}}}) {
+    const auto b = BoxPoints(lo, hi);
+    pts.insert(pts.end(), b.begin(), b.end());
+  }
+  m.SetGlobalMap(pts);
+  PlanRequest req;
+  req.start_p = Eigen::Vector3d(2.0, 5.0, 1.5);
+  req.goal = Eigen::Vector3d(7.5, 5.0, 1.75);
+  const PlanResult r = m.Plan(req);
+  EXPECT_EQ(r.status, PlanStatus::kFrontEndFailed);
+  EXPECT_EQ(r.search_status, SearchStatus::kNodeBudgetExhausted);
+  EXPECT_EQ(r.reason.rfind("front end failed: node budget exhausted", 0), 0u) << r.reason;
+}
+
+TEST(PlannerManagerTest, EmergencyStopBrakesToRestWithinTheLimits) {
+  PlannerManager m(GlobalConfig());
+  m.SetGlobalMap({});
+  const Eigen::Vector3d p(3.0, 5.0, 1.5), v(3.0, 0.0, 0.0), a(0.5, 0.5, 0.0);
+  const PlanResult r = m.PlanStop(p, v, a, 7.0);
+  ASSERT_TRUE(r.ok());
+  EXPECT_EQ(r.reason, "emergency stop");
+  const auto& s = *r.spline;
+  EXPECT_LT((V3(s.Evaluate(0.0)) - p).norm(), 0.01);
+  EXPECT_LT(V3(s.Derivative().Evaluate(s.tmax())).norm(), 1e-9);
+  const double stop_dist = (V3(s.Evaluate(s.tmax())) - p).norm();
+  EXPECT_GT(stop_dist, 9.0 / 4.0 * 0.9);  // v^2 / (2 a_max) at best
+  EXPECT_LT(stop_dist, 9.0 / 4.0 * 2.0);
+  const SplineStats st = Sample(s, m);
+  EXPECT_LE(st.max_speed, 3.0 + 1e-6);
+  EXPECT_LE(st.max_acc, 2.0 + 1e-6);
+  // At rest: a short hold at the same place.
+  const PlanResult hold = m.PlanStop(p, Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(), 7.0);
+  EXPECT_LT((V3(hold.spline->Evaluate(hold.spline->tmax())) - p).norm(), 1e-9);
+}
+
+// Records what the observer (the data collector's hook) received.
+class RecordingObserver : public PlanObserver {
+ public:
+  void OnPlan(const PlanRecord& r) override {
+    depths.push_back(r.depth);
+    odom_stamps.push_back(r.odometry ? r.odometry->stamp_s : -1.0);
+    goals.push_back(r.goal);
+    traj_ids.push_back(r.result->traj_id);
+    knots.push_back(r.result->spline->knots());
+  }
+  std::vector<std::shared_ptr<const DepthFrame>> depths;
+  std::vector<double> odom_stamps;
+  std::vector<Eigen::Vector3d> goals;
+  std::vector<int64_t> traj_ids;
+  std::vector<std::vector<double>> knots;
+};
+
+TEST(PlannerManagerTest, ObserverGetsTheExactInputsAndOutputOfEverySuccessfulPlan) {
+  PlannerConfig c = GlobalConfig();
+  c.map.source = MapSource::kDepth;
+  c.map.local_update_range_m = Eigen::Vector3d(8.0, 8.0, 2.0);
+  PlannerManager m(c);
+  auto obs = std::make_shared<RecordingObserver>();
+  m.SetObserver(obs);
+  auto frame = std::make_shared<DepthFrame>(
+      test::ConstantDepthFrame(std::numeric_limits<float>::infinity(), Eigen::Vector3d(2.0, 5.0, 1.5)));
+  frame->stamp_s = 4.5;
+  const MapUpdateResult mu = m.UpdateDepth(frame);
+  EXPECT_GT(mu.stats.rays, 0);
+  Odometry odom;
+  odom.stamp_s = 4.495;
+  odom.p_world_body = Eigen::Vector3d(2.0, 5.0, 1.5);
+  m.UpdateOdometry(odom);
+  PlanRequest req;
+  req.start_p = odom.p_world_body;
+  req.goal = Eigen::Vector3d(6.0, 5.0, 1.5);
+  req.start_time_s = 4.5;
+  const PlanResult r = m.Plan(req);
+  ASSERT_TRUE(r.ok()) << r.reason;
+  ASSERT_EQ(obs->depths.size(), 1u);
+  EXPECT_EQ(obs->depths[0].get(), frame.get());  // the very frame, not a copy
+  EXPECT_EQ(obs->odom_stamps[0], 4.495);
+  EXPECT_EQ(obs->goals[0], req.goal);
+  EXPECT_EQ(obs->traj_ids[0], r.traj_id);
+  EXPECT_EQ(obs->knots[0], r.spline->knots());
+  // Failed plans are not reported.
+  req.goal = Eigen::Vector3d(60.0, 5.0, 1.5);
+  EXPECT_FALSE(m.Plan(req).ok());
+  EXPECT_EQ(obs->depths.size(), 1u);
+}
+
+TEST(PlannerManagerTest, NonFiniteOdometryAndMalformedDepthAreRejected) {
+  PlannerManager m(GlobalConfig());
+  Odometry odom;
+  odom.v_world.y() = std::numeric_limits<double>::infinity();
+  try {
+    m.UpdateOdometry(odom);
+    FAIL();
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("odometry velocity is not finite"), std::string::npos);
+  }
+  EXPECT_FALSE(m.last_odometry().has_value());
+  auto frame = std::make_shared<DepthFrame>(test::ConstantDepthFrame(1.0f, Eigen::Vector3d(2, 5, 1.5)));
+  frame->depth_m.resize(10);
+  EXPECT_THROW(m.UpdateDepth(frame), std::invalid_argument);
+  EXPECT_EQ(m.last_depth(), nullptr);
+}
+
+}  // namespace
+}  // namespace fast_planner
