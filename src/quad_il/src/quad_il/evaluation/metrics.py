@@ -1,0 +1,130 @@
+"""Clearance geometry and per-controller summaries of evaluation results (ROS-free)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from quad_il.evaluation.episodes import EpisodeResult
+from quad_il.inference.geometry import rotation_matrix
+
+FloatArray = NDArray[np.float64]
+
+# The safety layer's refusal names (inference.safety.SafetyVerdict labels other than "accepted").
+REFUSAL_NAMES = frozenset(
+    {
+        "non_finite_output",
+        "velocity_limit",
+        "acceleration_limit",
+        "start_far_from_vehicle",
+        "collision_in_depth",
+    }
+)
+
+
+@dataclass(frozen=True)
+class Box:
+    """An oriented world box (the simulator's world markers): centre, rotation (x, y, z, w), full edge
+    lengths."""
+
+    center: FloatArray
+    q_xyzw: FloatArray
+    size: FloatArray
+
+
+def point_box_distances(points: FloatArray, boxes: Sequence[Box]) -> FloatArray:
+    """(N,) exact distance from each point to the nearest box (0 inside); +inf without boxes."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    best = np.full(len(pts), np.inf)
+    for b in boxes:
+        local = (pts - b.center) @ rotation_matrix(b.q_xyzw)  # rows: R^T (p - c)
+        excess = np.maximum(np.abs(local) - 0.5 * np.asarray(b.size), 0.0)
+        best = np.minimum(best, np.linalg.norm(excess, axis=1))
+    return best
+
+
+def clearance_lower_bound(points: FloatArray, boxes: Sequence[Box], vehicle_box_m: FloatArray) -> float:
+    """Minimum over the points of (distance from the vehicle's centre to the nearest box) minus the vehicle
+    box's circumscribed radius: a lower bound of the exact box-to-box clearance (the simulator's
+    ClearanceToObstacles), negative when the vehicle may touch a box. The ground is not an obstacle here."""
+    if len(points) == 0:
+        return math.nan
+    radius = 0.5 * float(np.linalg.norm(vehicle_box_m))
+    return float(point_box_distances(points, boxes).min() - radius)
+
+
+def path_length(points: FloatArray) -> float:
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) if len(p) > 1 else 0.0
+
+
+def percentile(values: Sequence[float], q: float) -> float:
+    """Nearest rank (as the inference benchmark); nan for no values."""
+    v = sorted(values)
+    if not v:
+        return math.nan
+    return v[min(max(math.ceil(q * len(v)) - 1, 0), len(v) - 1)]
+
+
+@dataclass(frozen=True)
+class ControllerSummary:
+    controller: str
+    episodes: int
+    success_rate: float
+    collision_rate: float
+    timeout_rate: float
+    other_rate: float  # reset or take-off failures (not the controller's doing)
+    mean_time_to_goal_s: float  # over successful episodes
+    mean_path_length_m: float  # over successful episodes
+    min_clearance_m: float  # over all flown episodes
+    median_min_clearance_m: float
+    decision_ms_median: float
+    decision_ms_p99: float
+    decisions: int
+    refusals: int
+
+
+def summarise(controller: str, results: Sequence[EpisodeResult]) -> ControllerSummary:
+    rs = [r for r in results if r.controller == controller]
+    n = len(rs)
+    if n == 0:
+        raise ValueError(f"no results for controller {controller!r}")
+
+    def rate(outcome: str) -> float:
+        return sum(r.outcome == outcome for r in rs) / n
+
+    ok = [r for r in rs if r.outcome == "goal_reached"]
+    flown = [r.min_clearance_m for r in rs if not math.isnan(r.min_clearance_m)]
+    latencies = [x for r in rs for x in r.decision_ms]
+    refusals = sum(v for r in rs for k, v in r.counts.items() if k in REFUSAL_NAMES)
+    return ControllerSummary(
+        controller=controller,
+        episodes=n,
+        success_rate=rate("goal_reached"),
+        collision_rate=rate("collision"),
+        timeout_rate=rate("timeout"),
+        other_rate=rate("reset_failed") + rate("takeoff_failed"),
+        mean_time_to_goal_s=float(np.mean([r.time_to_goal_s for r in ok])) if ok else math.nan,
+        mean_path_length_m=float(np.mean([r.path_length_m for r in ok])) if ok else math.nan,
+        min_clearance_m=min(flown) if flown else math.nan,
+        median_min_clearance_m=float(np.median(flown)) if flown else math.nan,
+        decision_ms_median=percentile(latencies, 0.5),
+        decision_ms_p99=percentile(latencies, 0.99),
+        decisions=sum(r.decisions for r in rs),
+        refusals=refusals,
+    )
+
+
+REFUSAL_NAMES = frozenset(
+    {
+        "non_finite_output",
+        "velocity_limit",
+        "acceleration_limit",
+        "start_far_from_vehicle",
+        "collision_in_depth",
+    }
+)

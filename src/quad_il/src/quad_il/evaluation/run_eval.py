@@ -1,0 +1,347 @@
+"""`make eval`: the closed-loop evaluation (issue 8). The same held-out seeded worlds and start/goal pairs are
+flown by each controller (expert, Python policy, C++ policy); then the Markdown report, plots and BENCH lines.
+
+    python -m quad_il.evaluation.run_eval --policy runs/default/policy.ts --seeds 9000-9019 --episodes 20
+        [--density 12.5] [--controllers expert,py,cpp] [--out results/eval] [--sim-config config/sim.yaml]
+        [--episode-timeout-s 60] [--min-distance-m 20 --max-distance-m 30] [--snapshots 8,15]
+        [--episode-mode relaunch|reset] [--report-only]
+
+Per controller: a private ROS master with `roslaunch quad_il infer.launch controller:=<c>` (simulator in
+lockstep with the controller as depth consumer, tracker, controller), then `python -m
+quad_il.evaluation.runner` flies every episode through the simulator's reset service; results are appended
+to OUT/<controller>.jsonl (an interrupted run resumes after the last finished episode). A controller whose
+node is not built is reported as unavailable (the expert's fast_planner_node, at the time of writing). With
+--snapshots, rviz snapshots (tools/snapshot.py) are taken at those sim times of each controller's run.
+BENCH lines: eval_<controller>_success_rate, _collision_rate, _timeout_rate (ratios in [0, 1]).
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import yaml
+
+from quad_il.collection.episodes import StartGoalConfig
+from quad_il.evaluation.episodes import (
+    GROUND_Z_M,
+    plan_eval_episodes,
+    read_episodes,
+    read_results,
+    write_episodes,
+)
+
+ROOT = Path(os.environ.get("QUAD_IL_ROOT") or Path(__file__).resolve().parents[5])
+CONTROLLERS = ("expert", "py", "cpp")
+# The FrameAck consumer of each controller (config/policy.yaml lockstep_consumer; planner.launch's default).
+CONSUMER = {"expert": "fast_planner", "py": "policy", "cpp": "policy"}
+NODE = {
+    "expert": ("fast_planner", "fast_planner_node"),
+    "py": ("quad_il", "policy_node.py"),
+    "cpp": ("quad_policy", "policy_node"),
+}
+
+
+class EvalError(RuntimeError):
+    """The evaluation cannot run; the message says why."""
+
+
+def parse_seeds(text: str) -> list[int]:
+    """'9000-9003,9010' -> [9000, 9001, 9002, 9003, 9010]."""
+    seeds: list[int] = []
+    for part in text.replace(" ", "").split(","):
+        if not part:
+            continue
+        if "-" in part:
+            lo, hi = (int(x) for x in part.split("-", 1))
+            if hi < lo:
+                raise EvalError(f"bad seed range {part!r}")
+            seeds.extend(range(lo, hi + 1))
+        else:
+            seeds.append(int(part))
+    if not seeds:
+        raise EvalError("no world seeds given")
+    return seeds
+
+
+def eval_sim_config(base_path: Path, controller: str, density: float | None) -> dict:
+    """The simulator config of an evaluation run: the base config in lockstep with the controller as depth
+    consumer (reproducible under any load), the box density if given, no episode time limit (the runner times
+    out), collisions end the episode."""
+    cfg = yaml.safe_load(base_path.read_text())
+    cfg["vehicle_file"] = str((base_path.parent / cfg["vehicle_file"]).resolve())
+    if cfg["world"].get("file"):
+        cfg["world"]["file"] = str((base_path.parent / cfg["world"]["file"]).resolve())
+    cfg["time"]["mode"] = "lockstep"
+    cfg["lockstep"]["depth_consumers"] = [CONSUMER[controller]]
+    cfg["lockstep"]["wait_for_command"] = True
+    cfg["lockstep"]["timeout_s"] = 10.0
+    cfg["episode"]["max_duration_s"] = 0.0
+    cfg["collision"]["policy"] = "freeze"
+    if density is not None:
+        cfg["world"]["generator"]["density_boxes_per_100m2"] = float(density)
+    return cfg
+
+
+def node_available(controller: str) -> str:
+    """'' if the controller's node is built, else why not."""
+    pkg, exe = NODE[controller]
+    for prefix in os.environ.get("CMAKE_PREFIX_PATH", "").split(os.pathsep):
+        if prefix and (Path(prefix) / "lib" / pkg / exe).is_file():
+            return ""
+    return f"{pkg}/{exe} is not built (not in CMAKE_PREFIX_PATH)"
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _stop_group(proc: subprocess.Popen, timeout_s: float = 20.0) -> None:
+    """SIGINT to the process group we started (roslaunch and its children), then SIGKILL if needed."""
+    if proc.poll() is not None:
+        return
+    os.killpg(proc.pid, signal.SIGINT)
+    try:
+        proc.wait(timeout_s)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+
+
+def _launch(
+    args: argparse.Namespace, controller: str, out: Path, sim_cfg: Path, tag: str
+) -> tuple[subprocess.Popen, dict[str, str]]:
+    port = _free_port()
+    env = {**os.environ, "ROS_MASTER_URI": f"http://127.0.0.1:{port}", "ROS_HOME": str(out / "ros_home")}
+    cmd = [
+        "roslaunch",
+        "-p",
+        str(port),
+        "quad_il",
+        "infer.launch",
+        f"controller:={controller}",
+        f"sim_config:={sim_cfg}",
+        "output:=log",
+    ]
+    if controller != "expert":
+        cmd.append(f"policy:={Path(args.policy).resolve()}")
+    with open(out / "logs" / f"{controller}_{tag}_launch.log", "w") as log:
+        proc = subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+    return proc, env
+
+
+def _run_runner(
+    args: argparse.Namespace,
+    controller: str,
+    out: Path,
+    env: dict[str, str],
+    episodes: Path,
+    tag: str,
+    no_reset: bool,
+) -> None:
+    cmd = [
+        sys.executable,
+        "-m",
+        "quad_il.evaluation.runner",
+        "--episodes",
+        str(episodes),
+        "--controller",
+        controller,
+        "--out",
+        str(out / f"{controller}.jsonl"),
+        "--episode-timeout-s",
+        str(args.episode_timeout_s),
+    ]
+    if no_reset:
+        cmd.append("--no-reset")
+    log_path = out / "logs" / f"{controller}_{tag}_runner.log"
+    with open(log_path, "w") as log:
+        rc = subprocess.run(
+            cmd, env=env, stdout=log, stderr=subprocess.STDOUT, timeout=args.wall_timeout_s
+        ).returncode
+    with open(log_path) as log:
+        sys.stderr.write("".join(line for line in log if line.startswith("[eval")))
+    if rc != 0:
+        raise EvalError(f"the {controller} runner failed (exit {rc}); see {log_path}")
+
+
+def _start_snapshots(
+    args: argparse.Namespace, controller: str, out: Path, env: dict[str, str]
+) -> subprocess.Popen | None:
+    if not args.snapshots:
+        return None
+    label = "expert" if controller == "expert" else "learned"
+    with open(out / "logs" / f"{controller}_snapshot.log", "w") as log:
+        return subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "quad_il.tools.snapshot",
+                "--out",
+                str(out / "snapshots" / controller),
+                "--times",
+                args.snapshots,
+                "--trajectory",
+                f"/planner/bspline:{label}",
+                "--size",
+                "960x600",
+                "--timeout-s",
+                str(max(600.0, 4 * args.episode_timeout_s)),
+            ],
+            env=env,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+
+
+def _finish_snapshots(snap: subprocess.Popen | None, controller: str) -> None:
+    if snap is None:
+        return
+    try:
+        snap.wait(120)
+    except subprocess.TimeoutExpired:
+        print(f"[eval] {controller}: snapshots not finished (times beyond the run?)", file=sys.stderr)
+    _stop_group(snap)
+
+
+def run_controller(args: argparse.Namespace, controller: str, out: Path, episodes_file: Path) -> str:
+    """Flies the episodes not yet in OUT/<controller>.jsonl; returns '' or why the controller was skipped.
+
+    Episode mode `relaunch` (default): one launch per episode whose simulator config holds the episode (seed,
+    start, goal), so every episode starts from freshly started nodes. `reset`: one launch, the episodes
+    through the simulator's reset service; it needs a tracker that re-anchors its reference on a new episode
+    (kr_tracker keeps the previous reference at the time of writing: take-offs after the first one fail).
+    """
+    why = node_available(controller)
+    if why:
+        return why
+    done = {r.index for r in read_results(out / f"{controller}.jsonl")}
+    specs = [s for s in read_episodes(episodes_file) if s.index not in done]
+    if not specs:
+        return ""
+    (out / "logs").mkdir(parents=True, exist_ok=True)
+    base = eval_sim_config(Path(args.sim_config), controller, args.density)
+    print(
+        f"[eval] {controller}: {len(specs)} episode(s), mode {args.episode_mode}", file=sys.stderr, flush=True
+    )
+    if args.episode_mode == "reset":
+        sim_cfg = out / f"sim_{controller}.yaml"
+        sim_cfg.write_text(yaml.safe_dump(base))
+        todo = out / f"{controller}_todo.json"
+        write_episodes(todo, specs)
+        launch, env = _launch(args, controller, out, sim_cfg, "all")
+        snap = _start_snapshots(args, controller, out, env)
+        try:
+            _run_runner(args, controller, out, env, todo, "all", no_reset=False)
+            _finish_snapshots(snap, controller)
+        finally:
+            if snap is not None:
+                _stop_group(snap)
+            _stop_group(launch)
+        return ""
+    (out / f"sim_{controller}.yaml").write_text(yaml.safe_dump(base))  # the generator config (report)
+    for n, spec in enumerate(specs):
+        cfg = copy.deepcopy(base)
+        cfg["world"]["file"] = ""
+        cfg["world"]["seed"] = int(spec.seed)
+        cfg["world"]["start_m"] = [spec.start_world[0], spec.start_world[1], GROUND_Z_M]
+        cfg["world"]["start_yaw_deg"] = math.degrees(spec.start_yaw_rad)
+        cfg["world"]["goal_m"] = list(spec.goal_world)
+        tag = f"ep{spec.index:03d}"
+        sim_cfg = out / "episodes" / f"sim_{controller}_{tag}.yaml"
+        sim_cfg.parent.mkdir(parents=True, exist_ok=True)
+        sim_cfg.write_text(yaml.safe_dump(cfg))
+        todo = out / "episodes" / f"{controller}_{tag}.json"
+        write_episodes(todo, [spec])
+        launch, env = _launch(args, controller, out, sim_cfg, tag)
+        snap = _start_snapshots(args, controller, out, env) if n == 0 else None
+        try:
+            _run_runner(args, controller, out, env, todo, tag, no_reset=True)
+            _finish_snapshots(snap, controller)
+        finally:
+            if snap is not None:
+                _stop_group(snap)
+            _stop_group(launch)
+    return ""
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--policy", default="", help="exported policy (policy.ts) for the py and cpp controllers")
+    ap.add_argument("--seeds", default="9000-9019", help="held-out world seeds, e.g. 9000-9019,9100")
+    ap.add_argument("--episodes", type=int, default=20)
+    ap.add_argument(
+        "--density", type=float, default=None, help="boxes per 100 m^2 (default: the sim config's)"
+    )
+    ap.add_argument("--controllers", default=",".join(CONTROLLERS))
+    ap.add_argument("--out", default=str(ROOT / "results" / "eval"))
+    ap.add_argument("--sim-config", default=str(ROOT / "config" / "sim.yaml"))
+    ap.add_argument("--episode-timeout-s", type=float, default=60.0, help="sim time per episode")
+    ap.add_argument("--wall-timeout-s", type=float, default=7200.0, help="wall time per controller")
+    ap.add_argument("--min-distance-m", type=float, default=20.0)
+    ap.add_argument("--max-distance-m", type=float, default=30.0)
+    ap.add_argument(
+        "--snapshots", default="", help="comma-separated sim times of rviz snapshots per controller"
+    )
+    ap.add_argument(
+        "--episode-mode",
+        choices=["relaunch", "reset"],
+        default="relaunch",
+        help="relaunch: nodes started afresh per episode; reset: one launch, the simulator's reset service",
+    )
+    ap.add_argument(
+        "--report-only", action="store_true", help="only (re)write the report of existing results"
+    )
+    args = ap.parse_args(argv)
+    from quad_il.evaluation.report import write_report
+
+    try:
+        controllers = [c.strip() for c in args.controllers.split(",") if c.strip()]
+        bad = [c for c in controllers if c not in CONTROLLERS]
+        if bad:
+            raise EvalError(f"unknown controller(s) {bad} (choose from {', '.join(CONTROLLERS)})")
+        if any(c != "expert" for c in controllers) and not args.report_only:
+            if not args.policy or not Path(args.policy).is_file():
+                raise EvalError(f"--policy must name an exported policy file, got {args.policy!r}")
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        sim_base = yaml.safe_load(Path(args.sim_config).read_text())
+        gen = sim_base["world"]["generator"]
+        start_goal = StartGoalConfig(
+            bounds_min_xy_m=tuple(gen["bounds_min_m"][:2]),
+            bounds_max_xy_m=tuple(gen["bounds_max_m"][:2]),
+            min_distance_m=args.min_distance_m,
+            max_distance_m=args.max_distance_m,
+        )
+        episodes_file = out / "episodes.json"
+        specs = plan_eval_episodes(parse_seeds(args.seeds), args.episodes, start_goal)
+        if episodes_file.is_file() and read_episodes(episodes_file) != specs:
+            raise EvalError(f"{episodes_file} holds other episodes: choose another --out or remove it")
+        write_episodes(episodes_file, specs)
+        skipped: dict[str, str] = {}
+        if not args.report_only:
+            for c in controllers:
+                why = run_controller(args, c, out, episodes_file)
+                if why:
+                    print(f"[eval] {c}: skipped: {why}", file=sys.stderr)
+                    skipped[c] = why
+        report = write_report(out, controllers, specs, skipped, vars(args))
+    except (EvalError, OSError, ValueError, subprocess.TimeoutExpired) as e:
+        print(f"eval: {e}", file=sys.stderr)
+        return 1
+    print(f"[eval] report: {report}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,76 @@
+"""config/policy.yaml: the configuration of both policy nodes (pydantic v2, strict).
+
+The C++ node reads the same file with quad_common's StrictYaml (quad_policy/config.h): every key is required,
+an unknown key, a wrong type or an out-of-range value is a `PolicyConfigError` naming the key and the value.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+
+class PolicyConfigError(ValueError):
+    """config/policy.yaml is invalid; the message names the key and the value."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class RefusalConfig(_Strict):
+    action: Literal["stop", "hover"]
+    stop_max_decel_mps2: float = Field(gt=0.0, allow_inf_nan=False)
+    stop_min_duration_s: float = Field(gt=0.0, allow_inf_nan=False)
+
+
+class SafetyConfig(_Strict):
+    enabled: bool
+    max_vel_mps: float = Field(gt=0.0, allow_inf_nan=False)
+    max_acc_mps2: float = Field(gt=0.0, allow_inf_nan=False)
+    max_start_error_m: float = Field(gt=0.0, allow_inf_nan=False)
+    vehicle_radius_m: float = Field(gt=0.0, allow_inf_nan=False)
+    sample_dt_s: float = Field(gt=0.0, allow_inf_nan=False)
+    check_horizon_s: float = Field(ge=0.0, allow_inf_nan=False)
+    collision_min_pixels: int = Field(ge=1)
+
+
+class PolicyNodeConfig(_Strict):
+    policy_file: str
+    num_threads: int = Field(ge=1, le=64)
+    replan_rate_hz: float = Field(ge=0.0, allow_inf_nan=False)
+    goal_tolerance_m: float = Field(ge=0.0, allow_inf_nan=False)
+    max_odom_age_s: float = Field(gt=0.0, allow_inf_nan=False)
+    lockstep_consumer: str = Field(min_length=1)
+    send_to_tracker: bool
+    refusal: RefusalConfig
+    safety: SafetyConfig
+
+
+def config_from_tree(tree: Any, source: str = "<config>") -> PolicyNodeConfig:
+    if not isinstance(tree, dict):
+        raise PolicyConfigError(f"{source}: top level must be a mapping of keys to values")
+    try:
+        return PolicyNodeConfig.model_validate(tree)
+    except ValidationError as e:
+        lines = []
+        for err in e.errors():
+            key = ".".join(str(p) for p in err["loc"]) or "<root>"
+            value = err.get("input")
+            shown = "" if isinstance(value, dict) else f" (got {value!r})"
+            lines.append(f"key '{key}': {err['msg']}{shown}")
+        raise PolicyConfigError(f"{source}: invalid policy config:\n  " + "\n  ".join(lines)) from None
+
+
+def load_policy_config(path: str | Path) -> PolicyNodeConfig:
+    p = Path(path)
+    if not p.is_file():
+        raise PolicyConfigError(f"policy config not found: {p}")
+    try:
+        tree = yaml.safe_load(p.read_text())
+    except yaml.YAMLError as e:
+        raise PolicyConfigError(f"{p}: not valid YAML: {e}") from None
+    return config_from_tree(tree, str(p))

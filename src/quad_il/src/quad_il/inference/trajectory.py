@@ -1,0 +1,111 @@
+"""Uniform cubic B-splines as the policy nodes send them (the C++ twin: quad_policy/trajectory.h).
+
+Knots (i - 3) dt for i = 0 .. K + 3: knots[3] = 0 is flown at start_time_s (the depth frame's stamp).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from quad_il.inference.meta import PolicyMeta
+
+FloatArray = NDArray[np.float64]
+
+# Uniform cubic B-spline in matrix form (Qin 2000): p(u) = [1 u u^2 u^3] M [c_k .. c_k+3].
+CUBIC_M = np.array([[1, 4, 1, 0], [-3, 0, 3, 0], [3, -6, 3, 0], [-1, 3, -3, 1]], dtype=np.float64) / 6.0
+
+
+@dataclass(frozen=True)
+class UniformBspline:
+    start_time_s: float
+    knot_dt_s: float
+    ctrl_world: FloatArray  # (K, 3), K >= 4
+
+    @property
+    def num_ctrl_pts(self) -> int:
+        return int(self.ctrl_world.shape[0])
+
+    @property
+    def duration_s(self) -> float:
+        return (self.num_ctrl_pts - 3) * self.knot_dt_s
+
+    def knots(self) -> FloatArray:
+        return (np.arange(self.num_ctrl_pts + 4, dtype=np.float64) - 3.0) * self.knot_dt_s
+
+    def _eval(self, t_s: NDArray[np.float64] | float, derivative: int) -> FloatArray:
+        if self.num_ctrl_pts < 4 or not self.knot_dt_s > 0.0:
+            raise ValueError("a uniform cubic B-spline needs >= 4 control points and knot_dt_s > 0")
+        t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+        if not np.all(np.isfinite(t)):
+            raise ValueError("B-spline evaluated at a non-finite time")
+        segments = self.num_ctrl_pts - 3
+        x = np.clip(t / self.knot_dt_s, 0.0, float(segments))
+        k = np.minimum(np.floor(x).astype(np.int64), segments - 1)
+        u = x - k
+        one, zero = np.ones_like(u), np.zeros_like(u)
+        if derivative == 0:
+            powers = np.stack([one, u, u * u, u * u * u], axis=1)
+        elif derivative == 1:
+            powers = np.stack([zero, one, 2 * u, 3 * u * u], axis=1) / self.knot_dt_s
+        else:
+            powers = np.stack([zero, zero, 2 * one, 6 * u], axis=1) / self.knot_dt_s**2
+        w = powers @ CUBIC_M  # (S, 4)
+        idx = k[:, None] + np.arange(4)[None, :]
+        return np.einsum("sj,sjd->sd", w, self.ctrl_world[idx])
+
+    def position(self, t_s: NDArray[np.float64] | float) -> FloatArray:
+        """(S, 3) positions at times t_s after start_time_s (clamped to [0, duration])."""
+        return self._eval(t_s, 0)
+
+    def velocity(self, t_s: NDArray[np.float64] | float) -> FloatArray:
+        return self._eval(t_s, 1)
+
+    def acceleration(self, t_s: NDArray[np.float64] | float) -> FloatArray:
+        return self._eval(t_s, 2)
+
+    def velocity_ctrl_pts(self) -> FloatArray:
+        """V_i = (c_{i+1} - c_i) / dt: the velocity spline's control points (convex hull bounds the speed)."""
+        return np.diff(self.ctrl_world, axis=0) / self.knot_dt_s
+
+    def acceleration_ctrl_pts(self) -> FloatArray:
+        return np.diff(self.velocity_ctrl_pts(), axis=0) / self.knot_dt_s
+
+
+def policy_trajectory(ctrl_world: FloatArray, meta: PolicyMeta, stamp_s: float) -> UniformBspline:
+    c = np.asarray(ctrl_world, dtype=np.float64)
+    if c.shape != (meta.num_ctrl_pts, 3):
+        raise ValueError(
+            f"the policy's output has shape {c.shape}, its metadata declares ({meta.num_ctrl_pts}, 3)"
+        )
+    return UniformBspline(float(stamp_s), meta.knot_dt_s, c)
+
+
+def braking_trajectory(
+    p0_world: FloatArray,
+    v0_world: FloatArray,
+    max_decel_mps2: float,
+    min_duration_s: float,
+    start_time_s: float,
+) -> UniformBspline:
+    """From p0 with velocity v0 to rest along a line: p(t) = p0 + v0 T / 3 (1 - (1 - t/T)^3) on [0, T], T =
+    max(2 |v0| / max_decel, min_duration) (acceleration at most max_decel). One cubic: K = 4 control points
+    c_i = P(tau_i) - T^2 / 6 P''(tau_i), tau_i = (i - 1) T, represent it exactly (as the C++ twin)."""
+    p0 = np.asarray(p0_world, dtype=np.float64)
+    v0 = np.asarray(v0_world, dtype=np.float64)
+    if not (np.all(np.isfinite(p0)) and np.all(np.isfinite(v0)) and math.isfinite(start_time_s)):
+        raise ValueError("stopping trajectory: non-finite start state")
+    if not (max_decel_mps2 > 0.0 and min_duration_s > 0.0):
+        raise ValueError("stopping trajectory: max_decel_mps2 and min_duration_s must be > 0")
+    duration = max(2.0 * float(np.linalg.norm(v0)) / max_decel_mps2, min_duration_s)
+    ctrl = np.empty((4, 3))
+    for i in range(4):
+        tau = (i - 1) * duration
+        r = 1.0 - tau / duration
+        position = p0 + v0 * (duration / 3.0) * (1.0 - r * r * r)
+        acceleration = -2.0 * v0 * (1.0 - tau / duration) / duration
+        ctrl[i] = position - duration * duration / 6.0 * acceleration
+    return UniformBspline(float(start_time_s), duration, ctrl)

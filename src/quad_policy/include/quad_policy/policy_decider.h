@@ -1,0 +1,82 @@
+// One decision of the learned policy: depth frame + odometry + goal -> preprocessing -> network ->
+// world-frame B-spline -> safety layer -> the trajectory to send (the policy's, or the stopping trajectory
+// when refused). ROS-free; policy_node, the parity replay tool and the benchmark all call Decide(). The
+// Python twin is quad_il/inference/decider.py.
+#pragma once
+
+#include <Eigen/Core>
+
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "quad_policy/preprocessing.h"
+#include "quad_policy/safety.h"
+#include "quad_policy/torch_policy.h"
+#include "quad_policy/trajectory.h"
+
+namespace quad_policy {
+
+// What the vehicle does when a plan is refused: `stop` sends BrakingTrajectory from the odometry; `hover`
+// switches the tracker to its hover tracker (holds its last reference), done by the node.
+enum class RefusalAction { kStop, kHover };
+const char* ToString(RefusalAction action);
+
+struct RefusalConfig {
+  RefusalAction action = RefusalAction::kStop;
+  double stop_max_decel_mps2 = 3.0;
+  double stop_min_duration_s = 0.5;
+};
+
+struct DecisionInputs {
+  double stamp_s = 0.0;  // the depth frame's stamp: the trajectory starts here
+  DepthImageView depth;  // metres, REP 118
+  CameraModel camera;    // intrinsics and the camera's pose at the frame (from the odometry below)
+  VehicleState state;    // odometry used for the decision
+  Eigen::Vector3d goal_world = Eigen::Vector3d::Zero();
+};
+
+struct DecisionTimings {
+  double preprocess_ms = 0.0;  // depth + state encoding
+  double forward_ms = 0.0;     // the network
+  double decode_ms = 0.0;      // output decoding + trajectory
+  double safety_ms = 0.0;      // the safety layer (and the stopping trajectory)
+};
+
+struct Decision {
+  SafetyResult safety;
+  UniformBspline proposed;             // the policy's trajectory (world frame)
+  std::optional<UniformBspline> stop;  // the stopping trajectory when refused with RefusalAction::kStop
+  std::vector<float> depth_x;          // network depth input (input_height x input_width)
+  StateVector state_x{};               // state vector (EncodeState)
+  std::vector<float> y;                // network output (training representation)
+  DecisionTimings timings;
+  bool accepted() const { return safety.accepted(); }
+  // The trajectory to send to the tracker: the proposal if accepted, else the stopping trajectory (or none).
+  const UniformBspline* to_send() const;
+};
+
+class PolicyDecider {
+ public:
+  // Throws std::invalid_argument on an invalid safety or refusal configuration.
+  PolicyDecider(std::shared_ptr<const TorchPolicy> policy, const SafetyConfig& safety,
+                const RefusalConfig& refusal);
+
+  // Throws std::invalid_argument on invalid inputs (non-finite odometry or goal, empty depth).
+  Decision Decide(const DecisionInputs& in);
+
+  const VerdictCounts& counts() const { return counts_; }
+  const TorchPolicy& policy() const { return *policy_; }
+  const SafetyConfig& safety_config() const { return safety_; }
+  const RefusalConfig& refusal_config() const { return refusal_; }
+
+ private:
+  std::shared_ptr<const TorchPolicy> policy_;
+  SafetyConfig safety_;
+  RefusalConfig refusal_;
+  OutputDecoder decoder_;
+  VerdictCounts counts_;
+};
+
+}  // namespace quad_policy

@@ -1,0 +1,413 @@
+// policy_node: the learned policy in the loop, C++ (LibTorch). A thin adapter around
+// quad_policy::PolicyDecider: parameters, message conversion, the tracker action, lockstep acknowledgements.
+// docs/inference.md.
+//
+// Per depth frame: pair it with the latest odometry not newer than the frame, decide (preprocessing, network,
+// world-frame B-spline started at the frame's stamp, safety layer), publish the trajectory to fly on
+// planner/bspline and send it to tracker/track_bspline (a refused plan sends the stopping trajectory or
+// switches the tracker to hover), publish policy/decision, then acknowledge the frame (lockstep).
+#include <actionlib/client/action_client.h>
+#include <geometry_msgs/PoseStamped.h>
+#include <nav_msgs/Odometry.h>
+#include <quad_msgs/Bspline.h>
+#include <quad_msgs/EpisodeStatus.h>
+#include <quad_msgs/FrameAck.h>
+#include <quad_msgs/PolicyDecision.h>
+#include <quad_msgs/SwitchTracker.h>
+#include <quad_msgs/TrackBsplineAction.h>
+#include <ros/callback_queue.h>
+#include <ros/ros.h>
+#include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/Image.h>
+#include <tf2_ros/transform_listener.h>
+
+#include <quad_common/strict_yaml.h>
+#include <quad_policy/config.h>
+#include <quad_policy/policy_decider.h>
+#include <quad_policy/torch_policy.h>
+
+#include "../ros/bspline_message.h"
+
+#include <chrono>
+#include <cmath>
+#include <deque>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <thread>
+
+namespace {
+
+using TrackClient = actionlib::ActionClient<quad_msgs::TrackBsplineAction>;
+
+double MsSince(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+struct OdomSample {
+  double stamp_s;
+  quad_policy::VehicleState state;
+};
+
+class PolicyNode {
+ public:
+  PolicyNode() : nh_(), pnh_("~"), tf_listener_(tf_buffer_) {
+    std::string config_path;
+    if (!pnh_.getParam("config", config_path))
+      throw std::runtime_error("private parameter ~config is required");
+    cfg_ = quad_policy::LoadPolicyNodeConfig(config_path);
+    std::string policy_file;
+    if (pnh_.getParam("policy_file", policy_file) && !policy_file.empty()) cfg_.policy_file = policy_file;
+    int threads = 0;
+    if (pnh_.getParam("num_threads", threads) && threads > 0) cfg_.num_threads = threads;
+    bool send = true;
+    if (pnh_.getParam("send_to_tracker", send)) cfg_.send_to_tracker = send;
+    if (cfg_.policy_file.empty())
+      throw std::runtime_error("no policy file: set policy_file in the config or ~policy_file");
+
+    quad_policy::TuneMallocForInference();
+    quad_policy::ConfigureTorchThreads(cfg_.num_threads);
+    auto policy = std::make_shared<const quad_policy::TorchPolicy>(cfg_.policy_file);
+    decider_ = std::make_unique<quad_policy::PolicyDecider>(policy, cfg_.safety, cfg_.refusal);
+    const quad_policy::PolicyMeta& m = policy->meta();
+    ROS_INFO(
+        "policy_node: %s (input %dx%d, state %s, output %s %s, K = %d over %.2f s, network entry %s), "
+        "%d thread(s), refusal action %s",
+        cfg_.policy_file.c_str(), m.input_width, m.input_height, ToString(m.state_frame),
+        ToString(m.output_frame), ToString(m.representation), m.num_ctrl_pts, m.horizon_s,
+        policy->has_forward_net() ? "forward_net" : "forward_prepared", quad_policy::TorchThreads(),
+        ToString(cfg_.refusal.action));
+    WarmUp(*policy);
+
+    const ros::TransportHints hints = ros::TransportHints().tcpNoDelay();
+    odom_sub_ = nh_.subscribe("odom", 50, &PolicyNode::OnOdom, this, hints);
+    goal_sub_ = nh_.subscribe("planner/goal", 10, &PolicyNode::OnGoal, this, hints);
+    info_sub_ = nh_.subscribe("camera/depth/camera_info", 2, &PolicyNode::OnCameraInfo, this, hints);
+    status_sub_ = nh_.subscribe("sim/status", 10, &PolicyNode::OnStatus, this, hints);
+    bspline_pub_ = nh_.advertise<quad_msgs::Bspline>("planner/bspline", 10);
+    proposal_pub_ = nh_.advertise<quad_msgs::Bspline>("policy/proposal", 10);
+    decision_pub_ = nh_.advertise<quad_msgs::PolicyDecision>("policy/decision", 100);
+    ack_pub_ = nh_.advertise<quad_msgs::FrameAck>("sim/frame_ack", 100);
+    switch_client_ = nh_.serviceClient<quad_msgs::SwitchTracker>("tracker/switch");
+
+    // Depth frames are decided on their own thread so odometry and goals keep arriving meanwhile.
+    ros::SubscribeOptions ops = ros::SubscribeOptions::create<sensor_msgs::Image>(
+        "camera/depth/image", 2, [this](const sensor_msgs::Image::ConstPtr& msg) { OnDepth(msg); },
+        ros::VoidPtr(), &depth_queue_);
+    ops.transport_hints = hints;
+    depth_sub_ = nh_.subscribe(ops);
+    depth_thread_ = std::thread([this] {
+      while (nh_.ok()) depth_queue_.callAvailable(ros::WallDuration(0.05));
+    });
+  }
+
+  ~PolicyNode() {
+    if (depth_thread_.joinable()) depth_thread_.join();
+  }
+
+ private:
+  // The first forward passes of a TorchScript module are slower (profiling executor): run them before flying.
+  void WarmUp(const quad_policy::TorchPolicy& policy) {
+    const quad_policy::PolicyMeta& m = policy.meta();
+    const std::vector<float> depth_x(static_cast<std::size_t>(m.input_height) * m.input_width, 0.5f);
+    quad_policy::StateVector s{};
+    s[9] = 1.0f;
+    for (int i = 0; i < 3; ++i) policy.Run(depth_x, s, quad_policy::VehicleState(), Eigen::Vector3d::Zero());
+  }
+
+  void OnOdom(const nav_msgs::Odometry::ConstPtr& msg) {
+    OdomSample o;
+    o.stamp_s = msg->header.stamp.toSec();
+    const auto& p = msg->pose.pose.position;
+    const auto& q = msg->pose.pose.orientation;
+    const auto& v = msg->twist.twist.linear;
+    o.state.p_world_body = Eigen::Vector3d(p.x, p.y, p.z);
+    o.state.q_world_body = Eigen::Quaterniond(q.w, q.x, q.y, q.z);
+    o.state.v_world = Eigen::Vector3d(v.x, v.y, v.z);  // twist in the world frame (docs/CONVENTIONS.md)
+    std::lock_guard<std::mutex> lock(mu_);
+    odom_.push_back(o);
+    while (odom_.size() > 400) odom_.pop_front();
+  }
+
+  void OnGoal(const geometry_msgs::PoseStamped::ConstPtr& msg) {
+    const auto& p = msg->pose.position;
+    const Eigen::Vector3d g(p.x, p.y, p.z);
+    if (!g.allFinite()) {
+      ROS_WARN("policy_node: goal with NaN/Inf ignored");
+      return;
+    }
+    std::lock_guard<std::mutex> lock(mu_);
+    goal_ = g;
+    ROS_INFO("policy_node: goal (%.2f, %.2f, %.2f)", g.x(), g.y(), g.z());
+  }
+
+  void OnCameraInfo(const sensor_msgs::CameraInfo::ConstPtr& msg) {
+    std::lock_guard<std::mutex> lock(mu_);
+    camera_info_ = *msg;
+  }
+
+  void OnStatus(const quad_msgs::EpisodeStatus::ConstPtr& msg) {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (episode_id_ && *episode_id_ != msg->episode_id) {
+      // A new episode: the goal, the odometry and the plan state belong to the previous one.
+      goal_.reset();
+      odom_.clear();
+      last_decision_stamp_.reset();
+      hovering_ = false;
+      ROS_INFO("policy_node: episode %u started: waiting for its goal", msg->episode_id);
+    }
+    episode_id_ = msg->episode_id;
+  }
+
+  void Count(const std::string& name) { ++counts_[name]; }
+
+  void OnDepth(const sensor_msgs::Image::ConstPtr& msg) {
+    // actionlib's ActionClient waits for a valid ROS time when it is built; under use_sim_time a lockstepped
+    // simulator publishes /clock only once this node's depth subscription is up, so the client is built here,
+    // on the first frame (the goal of an episode comes seconds later: the client has connected by then).
+    if (cfg_.send_to_tracker && !track_client_) {
+      track_client_ = std::make_unique<TrackClient>(nh_, "tracker/track_bspline");
+    }
+    quad_msgs::PolicyDecision out;
+    out.header = msg->header;
+    out.node = "cpp";
+    out.frame_seq = msg->header.seq;
+    out.action = "none";
+    Handle(*msg, &out);
+    for (const auto& [name, n] : counts_) {
+      out.count_names.push_back(name);
+      out.count_values.push_back(n);
+    }
+    {
+      std::lock_guard<std::mutex> lock(action_mu_);
+      out.tracker_rejections = tracker_rejections_;
+      out.last_tracker_rejection = last_rejection_;
+    }
+    decision_pub_.publish(out);
+    // Lockstep: acknowledge after deciding (and sending), whatever the outcome.
+    quad_msgs::FrameAck ack;
+    ack.consumer = cfg_.lockstep_consumer;
+    ack.frame_seq = msg->header.seq;
+    ack.stamp = msg->header.stamp;
+    ack_pub_.publish(ack);
+  }
+
+  void Skip(const std::string& status, const std::string& reason, quad_msgs::PolicyDecision* out) {
+    out->status = status;
+    out->reason = reason;
+    Count(status);
+  }
+
+  void Handle(const sensor_msgs::Image& img, quad_msgs::PolicyDecision* out) {
+    const double stamp = img.header.stamp.toSec();
+    if (img.encoding != "32FC1" || img.is_bigendian || img.step < img.width * 4 || img.step % 4 != 0 ||
+        img.data.size() < static_cast<std::size_t>(img.step) * img.height || img.width == 0 ||
+        img.height == 0) {
+      ROS_WARN_THROTTLE(5.0, "policy_node: depth frame skipped: encoding %s, %ux%u, step %u (need 32FC1)",
+                        img.encoding.c_str(), img.width, img.height, img.step);
+      return Skip("bad_input", "depth frame is not a little-endian 32FC1 image", out);
+    }
+    std::optional<Eigen::Vector3d> goal;
+    std::optional<OdomSample> odom;
+    std::optional<sensor_msgs::CameraInfo> info;
+    std::optional<ros::Time> last_decision;
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      goal = goal_;
+      last_decision = last_decision_stamp_;
+      for (auto it = odom_.rbegin(); it != odom_.rend(); ++it) {
+        if (it->stamp_s <= stamp + 1e-9) {
+          odom = *it;
+          break;
+        }
+      }
+      info = camera_info_;
+    }
+    if (!goal) return Skip("no_goal", "no goal for this episode yet", out);
+    if (!odom) return Skip("no_odometry", "no odometry at or before the frame", out);
+    if (!info) return Skip("no_camera_info", "no camera info yet", out);
+    if (stamp - odom->stamp_s > cfg_.max_odom_age_s) {
+      return Skip("stale_odometry", "latest odometry is " + std::to_string(stamp - odom->stamp_s) + " s old",
+                  out);
+    }
+    if ((odom->state.p_world_body - *goal).norm() < cfg_.goal_tolerance_m) {
+      return Skip("goal_reached", "within goal_tolerance_m of the goal", out);
+    }
+    // In integer nanoseconds (as the Python node), so that both nodes decide on exactly the same frames.
+    if (cfg_.replan_rate_hz > 0.0 && last_decision &&
+        (img.header.stamp - *last_decision).toNSec() < std::llround(1e9 / cfg_.replan_rate_hz)) {
+      return Skip("rate_limited", "replan_rate_hz", out);
+    }
+    if (!T_body_camera_) {
+      try {
+        // No waiting: a lockstepped simulator holds ROS time while this frame is open (the static transform
+        // is normally in long before the first frame; without it the frame is skipped and the next one
+        // retries).
+        const geometry_msgs::TransformStamped t =
+            tf_buffer_.lookupTransform("base_link", img.header.frame_id, ros::Time(0));
+        const auto& tr = t.transform.translation;
+        const auto& rq = t.transform.rotation;
+        Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+        T.linear() = Eigen::Quaterniond(rq.w, rq.x, rq.y, rq.z).normalized().toRotationMatrix();
+        T.translation() = Eigen::Vector3d(tr.x, tr.y, tr.z);
+        T_body_camera_ = T;
+      } catch (const tf2::TransformException& e) {
+        ROS_WARN_THROTTLE(5.0, "policy_node: no transform base_link -> %s yet: %s",
+                          img.header.frame_id.c_str(), e.what());
+        return Skip("no_camera_pose", e.what(), out);
+      }
+    }
+    quad_policy::DecisionInputs in;
+    in.stamp_s = stamp;
+    in.depth = quad_policy::DepthImageView{static_cast<int>(img.width), static_cast<int>(img.height),
+                                           img.step / 4, reinterpret_cast<const float*>(img.data.data())};
+    in.camera.width = static_cast<int>(info->width);
+    in.camera.height = static_cast<int>(info->height);
+    in.camera.fx = info->K[0];
+    in.camera.fy = info->K[4];
+    in.camera.cx = info->K[2];
+    in.camera.cy = info->K[5];
+    Eigen::Isometry3d T_world_body = Eigen::Isometry3d::Identity();
+    T_world_body.linear() = odom->state.q_world_body.normalized().toRotationMatrix();
+    T_world_body.translation() = odom->state.p_world_body;
+    in.camera.T_world_camera = T_world_body * *T_body_camera_;
+    in.state = odom->state;
+    in.goal_world = *goal;
+
+    quad_policy::Decision d;
+    try {
+      d = decider_->Decide(in);
+    } catch (const std::exception& e) {
+      ROS_WARN_THROTTLE(5.0, "policy_node: no decision: %s", e.what());
+      return Skip("bad_input", e.what(), out);
+    }
+    bool hovering;
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      last_decision_stamp_ = img.header.stamp;
+      hovering = hovering_;
+    }
+    const auto t0 = std::chrono::steady_clock::now();
+    const quad_policy::UniformBspline* send = d.to_send();
+    quad_msgs::Bspline msg;
+    if (send != nullptr) msg = quad_policy::ToBsplineMessage(*send, ++traj_id_, img.header.stamp);
+    out->message_ms = d.timings.decode_ms + MsSince(t0);
+    out->status = "decided";
+    out->verdict = ToString(d.safety.verdict);
+    out->accepted = d.accepted();
+    out->reason = d.safety.reason;
+    out->preprocess_ms = d.timings.preprocess_ms;
+    out->forward_ms = d.timings.forward_ms;
+    out->decision_ms = out->preprocess_ms + out->forward_ms + out->message_ms;
+    out->safety_ms = d.timings.safety_ms;
+    Count(out->verdict);
+    proposal_pub_.publish(
+        quad_policy::ToBsplineMessage(d.proposed, d.accepted() ? traj_id_ : 0, img.header.stamp));
+    if (!d.accepted()) {
+      ROS_WARN_THROTTLE(2.0, "policy_node: plan refused: %s", d.safety.reason.c_str());
+    }
+    if (send != nullptr) {
+      out->action = d.accepted() ? "policy" : "stop";
+      out->traj_id = msg.traj_id;
+      bspline_pub_.publish(msg);
+      SendToTracker(msg);
+      SetHovering(false);
+    } else {
+      out->action = "hover";
+      if (!hovering) SetHovering(SwitchToHover());
+    }
+  }
+
+  void SendToTracker(const quad_msgs::Bspline& msg) {
+    if (!track_client_) return;
+    if (!track_client_->isServerConnected()) {
+      // Sent anyway: right after start-up the goal topic is often connected before the server's status has
+      // confirmed the connection, and the goal then arrives. Counted as an event.
+      ROS_WARN_THROTTLE(5.0, "policy_node: tracker action tracker/track_bspline not confirmed connected");
+      Count("tracker_not_connected");
+    }
+    quad_msgs::TrackBsplineGoal goal;
+    goal.bspline = msg;
+    TrackClient::GoalHandle gh =
+        track_client_->sendGoal(goal, [this](TrackClient::GoalHandle h) { OnTransition(h); });
+    std::lock_guard<std::mutex> lock(action_mu_);
+    // The handles keep the goals tracked until their results arrive; older goals are long decided.
+    handles_.push_back(gh);
+    while (handles_.size() > 64) handles_.pop_front();
+  }
+
+  void SetHovering(bool hovering) {
+    std::lock_guard<std::mutex> lock(mu_);
+    hovering_ = hovering;
+  }
+
+  // Transition callbacks run on the main spinner thread.
+  void OnTransition(TrackClient::GoalHandle gh) {
+    if (gh.getCommState() != actionlib::CommState::DONE) return;
+    if (gh.getTerminalState() == actionlib::TerminalState::REJECTED) {
+      std::lock_guard<std::mutex> lock(action_mu_);
+      ++tracker_rejections_;
+      const auto result = gh.getResult();
+      last_rejection_ = result ? result->reason : gh.getTerminalState().getText();
+      ROS_WARN_THROTTLE(2.0, "policy_node: tracker rejected a trajectory: %s", last_rejection_.c_str());
+    }
+  }
+
+  bool SwitchToHover() {
+    quad_msgs::SwitchTracker srv;
+    srv.request.tracker = "hover";
+    if (switch_client_.call(srv) && srv.response.success) return true;
+    ROS_WARN_THROTTLE(5.0, "policy_node: could not switch the tracker to hover: %s",
+                      srv.response.message.c_str());
+    Count("hover_failed");
+    return false;
+  }
+
+  ros::NodeHandle nh_;
+  ros::NodeHandle pnh_;
+  tf2_ros::Buffer tf_buffer_;
+  tf2_ros::TransformListener tf_listener_;
+  quad_policy::PolicyNodeConfig cfg_;
+  std::unique_ptr<quad_policy::PolicyDecider> decider_;
+
+  ros::Subscriber odom_sub_, goal_sub_, info_sub_, status_sub_, depth_sub_;
+  ros::Publisher bspline_pub_, proposal_pub_, decision_pub_, ack_pub_;
+  ros::ServiceClient switch_client_;
+  std::unique_ptr<TrackClient> track_client_;  // built and used on the depth thread
+  ros::CallbackQueue depth_queue_;
+  std::thread depth_thread_;
+
+  std::mutex mu_;  // guards the inputs below (written by the main spinner, read by the depth thread)
+  std::deque<OdomSample> odom_;
+  std::optional<Eigen::Vector3d> goal_;
+  std::optional<sensor_msgs::CameraInfo> camera_info_;
+  std::optional<uint32_t> episode_id_;
+  std::optional<ros::Time> last_decision_stamp_;
+  bool hovering_ = false;  // the tracker was switched to hover by a refusal (cleared by the next trajectory)
+
+  // depth thread only
+  std::optional<Eigen::Isometry3d> T_body_camera_;
+  std::map<std::string, uint64_t> counts_;
+  int64_t traj_id_ = 0;
+
+  std::mutex action_mu_;
+  std::deque<TrackClient::GoalHandle> handles_;
+  uint64_t tracker_rejections_ = 0;
+  std::string last_rejection_;
+};
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  ros::init(argc, argv, "policy_node");
+  try {
+    PolicyNode node;
+    ros::spin();
+  } catch (const std::exception& e) {
+    ROS_FATAL("policy_node: %s", e.what());
+    return 1;
+  }
+  return 0;
+}

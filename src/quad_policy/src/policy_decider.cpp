@@ -1,0 +1,75 @@
+#include "quad_policy/policy_decider.h"
+
+#include <chrono>
+#include <cmath>
+#include <stdexcept>
+#include <utility>
+
+namespace quad_policy {
+
+const char* ToString(RefusalAction action) { return action == RefusalAction::kHover ? "hover" : "stop"; }
+
+const UniformBspline* Decision::to_send() const {
+  if (accepted()) return &proposed;
+  return stop ? &*stop : nullptr;
+}
+
+namespace {
+
+double MsSince(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+void ValidateRefusal(const RefusalConfig& r) {
+  if (!(std::isfinite(r.stop_max_decel_mps2) && r.stop_max_decel_mps2 > 0.0)) {
+    throw std::invalid_argument("refusal.stop_max_decel_mps2 must be > 0");
+  }
+  if (!(std::isfinite(r.stop_min_duration_s) && r.stop_min_duration_s > 0.0)) {
+    throw std::invalid_argument("refusal.stop_min_duration_s must be > 0");
+  }
+}
+
+}  // namespace
+
+PolicyDecider::PolicyDecider(std::shared_ptr<const TorchPolicy> policy, const SafetyConfig& safety,
+                             const RefusalConfig& refusal)
+    : policy_(std::move(policy)),
+      safety_(safety),
+      refusal_(refusal),
+      decoder_(policy_ ? policy_->meta() : throw std::invalid_argument("PolicyDecider needs a policy")) {
+  ValidateSafetyConfig(safety_);
+  ValidateRefusal(refusal_);
+}
+
+Decision PolicyDecider::Decide(const DecisionInputs& in) {
+  if (!std::isfinite(in.stamp_s)) throw std::invalid_argument("depth stamp is not finite");
+  if (in.depth.data == nullptr || in.depth.width <= 0 || in.depth.height <= 0) {
+    throw std::invalid_argument("depth image is empty");
+  }
+  const PolicyMeta& meta = policy_->meta();
+  Decision d;
+  auto t0 = std::chrono::steady_clock::now();
+  d.depth_x = PreprocessDepth(in.depth, meta.input_height, meta.input_width, meta.max_depth_m);
+  d.state_x = EncodeState(in.state, in.goal_world, meta);  // throws on non-finite odometry or goal
+  d.timings.preprocess_ms = MsSince(t0);
+
+  t0 = std::chrono::steady_clock::now();
+  d.y = policy_->Run(d.depth_x, d.state_x, in.state, in.goal_world);
+  d.timings.forward_ms = MsSince(t0);
+
+  t0 = std::chrono::steady_clock::now();
+  d.proposed = PolicyTrajectory(decoder_.Decode(d.y, in.state), meta, in.stamp_s);
+  d.timings.decode_ms = MsSince(t0);
+
+  t0 = std::chrono::steady_clock::now();
+  d.safety = CheckTrajectory(d.proposed, in.state.p_world_body, &in.depth, in.camera, safety_);
+  if (!d.accepted() && refusal_.action == RefusalAction::kStop) {
+    d.stop = BrakingTrajectory(in.state.p_world_body, in.state.v_world, refusal_.stop_max_decel_mps2,
+                               refusal_.stop_min_duration_s, in.stamp_s);
+  }
+  d.timings.safety_ms = MsSince(t0);
+  counts_.Add(d.safety.verdict);
+  return d;
+}
+
+}  // namespace quad_policy

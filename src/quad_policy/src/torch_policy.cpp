@@ -1,0 +1,184 @@
+// The only translation unit of quad_policy that includes LibTorch (torch/script.h, not torch/torch.h: it
+// compiles in about half the time, PLATFORM.md).
+#include "quad_policy/torch_policy.h"
+
+#include <ATen/Parallel.h>
+#include <malloc.h>
+#include <torch/script.h>
+
+#include <stdexcept>
+#include <string>
+#include <unordered_map>
+#include <utility>
+
+namespace quad_policy {
+
+void ConfigureTorchThreads(int num_threads) {
+  if (num_threads < 1)
+    throw std::invalid_argument("num_threads must be >= 1, got " + std::to_string(num_threads));
+  try {
+    at::set_num_interop_threads(1);
+  } catch (const c10::Error&) {
+    // Already set (it may be set once per process, before any inter-op work): keep it.
+  }
+  at::set_num_threads(num_threads);
+}
+
+int TorchThreads() { return at::get_num_threads(); }
+
+void TuneMallocForInference() {
+  // 256 MiB: above any buffer of one forward pass, so freed buffers stay in the heap for the next call.
+  mallopt(M_MMAP_THRESHOLD, 256 * 1024 * 1024);
+  mallopt(M_TRIM_THRESHOLD, 512 * 1024 * 1024);
+}
+
+namespace {
+
+at::Tensor Row(const Eigen::Vector3d& v) {
+  return torch::tensor({static_cast<float>(v.x()), static_cast<float>(v.y()), static_cast<float>(v.z())},
+                       torch::kFloat32)
+      .reshape({1, 3});
+}
+
+at::Tensor QuatRow(const Eigen::Quaterniond& q) {
+  // Exchanged as (x, y, z, w) (docs/CONVENTIONS.md).
+  return torch::tensor({static_cast<float>(q.x()), static_cast<float>(q.y()), static_cast<float>(q.z()),
+                        static_cast<float>(q.w())},
+                       torch::kFloat32)
+      .reshape({1, 4});
+}
+
+at::Tensor DepthTensor(const DepthImageView& depth) {
+  if (depth.data == nullptr || depth.width <= 0 || depth.height <= 0) {
+    throw std::invalid_argument("depth image is empty");
+  }
+  at::Tensor t = torch::empty({1, depth.height, depth.width}, torch::kFloat32);
+  float* dst = t.data_ptr<float>();
+  for (int r = 0; r < depth.height; ++r) {
+    const float* src = depth.data + static_cast<std::size_t>(r) * depth.row_stride;
+    std::copy(src, src + depth.width, dst + static_cast<std::size_t>(r) * depth.width);
+  }
+  return t;
+}
+
+CtrlPoints ToCtrl(const at::Tensor& t) {
+  const at::Tensor c = t.to(torch::kFloat64).contiguous().reshape({-1, 3});
+  CtrlPoints out(c.size(0), 3);
+  const double* p = c.data_ptr<double>();
+  for (int i = 0; i < c.size(0); ++i) {
+    for (int j = 0; j < 3; ++j) out(i, j) = p[3 * i + j];
+  }
+  return out;
+}
+
+std::vector<float> ToVector(const at::Tensor& t) {
+  const at::Tensor c = t.to(torch::kFloat32).contiguous().reshape({-1});
+  return std::vector<float>(c.data_ptr<float>(), c.data_ptr<float>() + c.numel());
+}
+
+}  // namespace
+
+struct TorchPolicy::Impl {
+  std::string path;
+  std::string json;
+  PolicyMeta meta;
+  mutable torch::jit::Module module;
+  bool has_forward_net = false;
+};
+
+TorchPolicy::TorchPolicy(const std::string& path) : impl_(std::make_unique<Impl>()) {
+  impl_->path = path;
+  std::unordered_map<std::string, std::string> extra{{kPolicyMetaFile, ""}};
+  try {
+    impl_->module = torch::jit::load(path, torch::kCPU, extra);
+  } catch (const c10::Error& e) {
+    throw std::runtime_error(path + ": cannot load the TorchScript policy: " + e.what_without_backtrace());
+  }
+  impl_->json = extra[kPolicyMetaFile];
+  if (impl_->json.empty()) {
+    throw PolicyFormatError(path + ": not a quad_il policy export (no " + std::string(kPolicyMetaFile) + ")");
+  }
+  impl_->meta = ParsePolicyMeta(impl_->json, path);
+  // The metadata must describe this very file: compare with the attributes the export preserved.
+  const PolicyMeta& m = impl_->meta;
+  try {
+    const auto check = [&](const char* attr, double file_value, double meta_value) {
+      if (file_value != meta_value) {
+        throw PolicyFormatError(path + ": attribute " + attr + " = " + std::to_string(file_value) +
+                                " disagrees with the metadata's " + std::to_string(meta_value));
+      }
+    };
+    check("input_height", impl_->module.attr("input_height").toInt(), m.input_height);
+    check("input_width", impl_->module.attr("input_width").toInt(), m.input_width);
+    check("max_depth_m", impl_->module.attr("max_depth_m").toDouble(), m.max_depth_m);
+    check("num_ctrl_pts", impl_->module.attr("num_ctrl_pts").toInt(), m.num_ctrl_pts);
+    check("horizon_s", impl_->module.attr("horizon_s").toDouble(), m.horizon_s);
+  } catch (const c10::Error& e) {
+    throw PolicyFormatError(path + ": missing policy attribute: " + e.what_without_backtrace());
+  }
+  impl_->has_forward_net = impl_->module.find_method("forward_net").has_value();
+  if (!impl_->has_forward_net && !impl_->module.find_method("forward_prepared").has_value()) {
+    throw PolicyFormatError(path + ": the file has neither forward_net nor forward_prepared");
+  }
+}
+
+TorchPolicy::~TorchPolicy() = default;
+TorchPolicy::TorchPolicy(TorchPolicy&&) noexcept = default;
+TorchPolicy& TorchPolicy::operator=(TorchPolicy&&) noexcept = default;
+
+const PolicyMeta& TorchPolicy::meta() const { return impl_->meta; }
+const std::string& TorchPolicy::path() const { return impl_->path; }
+const std::string& TorchPolicy::metadata_json() const { return impl_->json; }
+bool TorchPolicy::has_forward_net() const { return impl_->has_forward_net; }
+
+std::vector<float> TorchPolicy::Run(const std::vector<float>& depth_x, const StateVector& state_x,
+                                    const VehicleState& state, const Eigen::Vector3d& goal_world) const {
+  const PolicyMeta& m = impl_->meta;
+  if (static_cast<int>(depth_x.size()) != m.input_height * m.input_width) {
+    throw std::invalid_argument("network depth input has " + std::to_string(depth_x.size()) +
+                                " values, expected " + std::to_string(m.input_height * m.input_width));
+  }
+  c10::InferenceMode guard;
+  // from_blob: no copy; the tensors do not outlive this call.
+  const at::Tensor depth = torch::from_blob(const_cast<float*>(depth_x.data()),
+                                            {1, 1, m.input_height, m.input_width}, torch::kFloat32);
+  at::Tensor y;
+  if (impl_->has_forward_net) {
+    const at::Tensor s =
+        torch::from_blob(const_cast<float*>(state_x.data()), {1, kStateDim}, torch::kFloat32);
+    y = impl_->module.get_method("forward_net")({depth, s}).toTensor();
+  } else {
+    y = impl_->module
+            .get_method("forward_prepared")({depth, Row(state.p_world_body), Row(state.v_world),
+                                             QuatRow(state.q_world_body), Row(goal_world)})
+            .toTensor();
+  }
+  if (y.numel() != m.output_dim()) {
+    throw std::runtime_error(impl_->path + ": the network returned " + std::to_string(y.numel()) +
+                             " values, the metadata declares " + std::to_string(m.output_dim()));
+  }
+  return ToVector(y);
+}
+
+std::vector<float> TorchPolicy::FilePreprocessDepth(const DepthImageView& depth) const {
+  c10::InferenceMode guard;
+  return ToVector(impl_->module.get_method("preprocess_depth")({DepthTensor(depth)}).toTensor());
+}
+
+CtrlPoints TorchPolicy::FileDecode(const std::vector<float>& y, const VehicleState& state) const {
+  c10::InferenceMode guard;
+  const at::Tensor yt = torch::tensor(y, torch::kFloat32).reshape({1, -1});
+  return ToCtrl(impl_->module.get_method("decode")({yt, Row(state.p_world_body), QuatRow(state.q_world_body)})
+                    .toTensor());
+}
+
+CtrlPoints TorchPolicy::FileForward(const DepthImageView& depth, const VehicleState& state,
+                                    const Eigen::Vector3d& goal_world) const {
+  c10::InferenceMode guard;
+  return ToCtrl(impl_->module
+                    .forward({DepthTensor(depth), Row(state.p_world_body), Row(state.v_world),
+                              QuatRow(state.q_world_body), Row(goal_world)})
+                    .toTensor());
+}
+
+}  // namespace quad_policy

@@ -1,0 +1,213 @@
+// Policy metadata, config/policy.yaml, .npy and fixture round trips, and their error messages.
+#include <gtest/gtest.h>
+
+#include <quad_common/strict_yaml.h>
+
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <random>
+#include <string>
+
+#include "quad_policy/config.h"
+#include "quad_policy/fixture.h"
+#include "quad_policy/npy.h"
+#include "quad_policy/policy_meta.h"
+
+namespace quad_policy {
+namespace {
+
+// The metadata as learning/export.py writes it (abridged to what the nodes read, plus unread keys).
+std::string MetaJson(const std::string& representation = "bspline", const std::string& order = "3",
+                     const std::string& model = "{\"poly_degree\": 5, \"variant\": \"small\"}") {
+  return "{\"format\": \"quad_il_policy/1\", \"inputs\": {\"depth_m\": \"(B, H, W) float32 metres\"},"
+         " \"output\": {\"bspline_order\": " +
+         order +
+         ", \"horizon_s\": 2.0, \"knot_dt_s\": 0.2857142857142857,"
+         " \"network_frame\": \"local\", \"network_representation\": \"" +
+         representation +
+         "\","
+         " \"num_ctrl_pts\": 10}, \"preprocessing\": {\"input_height\": 96, \"input_width\": 128,"
+         " \"max_depth_m\": 10.0, \"position_scale_m\": 10.0, \"state_frame\": \"world\","
+         " \"velocity_scale_mps\": 3.0}, \"model\": " +
+         model + ", \"run\": null}";
+}
+
+std::string ErrorOf(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const std::exception& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(PolicyMeta, ParsesTheExportersMetadata) {
+  const PolicyMeta m = ParsePolicyMeta(MetaJson(), "p.ts");
+  EXPECT_EQ(m.input_height, 96);
+  EXPECT_EQ(m.input_width, 128);
+  EXPECT_DOUBLE_EQ(m.max_depth_m, 10.0);
+  EXPECT_EQ(m.state_frame, PolicyFrame::kWorld);
+  EXPECT_EQ(m.output_frame, PolicyFrame::kLocal);
+  EXPECT_EQ(m.representation, OutputRepresentation::kBspline);
+  EXPECT_EQ(m.num_ctrl_pts, 10);
+  EXPECT_NEAR(m.knot_dt_s(), 2.0 / 7.0, 1e-15);
+  EXPECT_EQ(m.output_dim(), 30);
+  const PolicyMeta p = ParsePolicyMeta(MetaJson("polynomial"), "p.ts");
+  EXPECT_EQ(p.poly_degree, 5);
+  EXPECT_EQ(p.output_dim(), 18);
+}
+
+TEST(PolicyMeta, ErrorsNameTheFileAndTheKey) {
+  EXPECT_NE(ErrorOf([] {
+              ParsePolicyMeta(MetaJson("spline"), "p.ts");
+            }).find("p.ts: policy metadata key 'output.network_representation' must be"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf([] { ParsePolicyMeta(MetaJson("bspline", "4"), "p.ts"); }).find("'output.bspline_order'"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf([] {
+              ParsePolicyMeta(MetaJson("polynomial", "3", "{}"), "p.ts");
+            }).find("'model.poly_degree' is missing"),
+            std::string::npos);
+  std::string other = MetaJson();
+  other.replace(other.find("quad_il_policy/1"), 16, "quad_il_policy/9");
+  EXPECT_NE(
+      ErrorOf([&] { ParsePolicyMeta(other, "p.ts"); }).find("unsupported policy format 'quad_il_policy/9'"),
+      std::string::npos);
+  EXPECT_NE(ErrorOf([] { ParsePolicyMeta("{not json", "p.ts"); }).find("not valid JSON"), std::string::npos);
+}
+
+TEST(PolicyNodeConfig, TheRepositoryConfigLoads) {
+  const PolicyNodeConfig c = LoadPolicyNodeConfig(QUAD_IL_CONFIG_DIR "/policy.yaml");
+  EXPECT_EQ(c.num_threads, 1);
+  EXPECT_EQ(c.lockstep_consumer, "policy");
+  EXPECT_EQ(c.refusal.action, RefusalAction::kStop);
+  EXPECT_TRUE(c.safety.enabled);
+  EXPECT_NO_THROW(ValidateSafetyConfig(c.safety));
+}
+
+std::string RepoConfigWith(const std::string& from, const std::string& to) {
+  std::ifstream f(QUAD_IL_CONFIG_DIR "/policy.yaml");
+  std::string text((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+  const std::size_t at = text.find(from);
+  if (at == std::string::npos) throw std::runtime_error("test setup: '" + from + "' not in policy.yaml");
+  return text.replace(at, from.size(), to);
+}
+
+TEST(PolicyNodeConfig, TyposMissingKeysAndBadValuesAreNamed) {
+  EXPECT_NE(ErrorOf([] {
+              PolicyNodeConfigFromString(
+                  RepoConfigWith("  max_vel_mps:", "  max_vel_mp: 3.0\n  max_vel_mps:"), "c");
+            }).find("unknown config key(s): 'safety.max_vel_mp'"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf([] {
+              PolicyNodeConfigFromString(RepoConfigWith("action: stop", "action: land"), "c");
+            }).find("'refusal.action' has value 'land'"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf([] {
+              PolicyNodeConfigFromString(RepoConfigWith("num_threads: 1", "num_threads: 0"), "c");
+            }).find("'num_threads' has value 0"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf([] {
+              PolicyNodeConfigFromString(RepoConfigWith("goal_tolerance_m: 0.5", ""), "c");
+            }).find("missing required key 'goal_tolerance_m'"),
+            std::string::npos);
+}
+
+class TempDir : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = std::filesystem::temp_directory_path() /
+           ("quad_policy_test_" + std::to_string(::getpid()) + "_" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    std::filesystem::create_directories(dir_);
+  }
+  void TearDown() override { std::filesystem::remove_all(dir_); }
+  std::string Path(const std::string& name) const { return (dir_ / name).string(); }
+  std::filesystem::path dir_;
+};
+
+using Npy = TempDir;
+
+TEST_F(Npy, ArraysRoundTripWithShapeAndDtype) {
+  const NpyArray f = NpyArray::FromFloat({1.5f, -2.0f, 3.25f, 0.0f, 1e-7f, 7.0f}, {2, 3});
+  WriteNpy(Path("f.npy"), f);
+  const NpyArray g = ReadNpy(Path("f.npy"));
+  EXPECT_EQ(g.dtype, "<f4");
+  EXPECT_EQ(g.shape, (std::vector<std::size_t>{2, 3}));
+  EXPECT_EQ(g.as_float(), f.as_float());
+  WriteNpy(Path("d.npy"), NpyArray::FromDouble({0.1, 0.2, 0.3, 0.4}, {4}));
+  EXPECT_EQ(ReadNpy(Path("d.npy")).as_double(), (std::vector<double>{0.1, 0.2, 0.3, 0.4}));
+  WriteNpy(Path("s.npy"), NpyArray::FromInt32({-7}, {}));
+  const NpyArray s = ReadNpy(Path("s.npy"));
+  EXPECT_TRUE(s.shape.empty());
+  EXPECT_EQ(s.as_double(), std::vector<double>{-7.0});
+}
+
+TEST_F(Npy, BadFilesAreRejectedWithTheReason) {
+  WriteNpy(Path("f.npy"), NpyArray::FromFloat({1, 2, 3, 4}, {4}));
+  std::filesystem::resize_file(Path("f.npy"), std::filesystem::file_size(Path("f.npy")) - 3);
+  EXPECT_NE(ErrorOf([&] { ReadNpy(Path("f.npy")); }).find("truncated data"), std::string::npos);
+  std::ofstream(Path("x.npy")) << "hello";
+  EXPECT_NE(ErrorOf([&] { ReadNpy(Path("x.npy")); }).find("not an .npy file"), std::string::npos);
+  EXPECT_NE(ErrorOf([&] { ReadNpy(Path("missing.npy")); }).find("cannot open"), std::string::npos);
+  NpyArray fortran = NpyArray::FromFloat({1, 2}, {2});
+  WriteNpy(Path("o.npy"), fortran);
+  std::fstream io(Path("o.npy"), std::ios::in | std::ios::out | std::ios::binary);
+  std::string head(64, '\0');
+  io.read(head.data(), 64);
+  head.replace(head.find("False"), 5, "True ");
+  io.seekp(0);
+  io.write(head.data(), 64);
+  io.close();
+  EXPECT_NE(ErrorOf([&] { ReadNpy(Path("o.npy")); }).find("Fortran"), std::string::npos);
+}
+
+using Fixture = TempDir;
+
+TEST_F(Fixture, DecisionFixturesRoundTrip) {
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> u(-5.0, 5.0);
+  DecisionFixture fx;
+  fx.fx = 96.8;
+  fx.fy = 96.8;
+  fx.cx = 79.5;
+  fx.cy = 59.5;
+  fx.T_body_camera.translation() = Eigen::Vector3d(0.1, 0.0, 0.0);
+  for (int i = 0; i < 3; ++i) {
+    RecordedFrame f;
+    f.stamp_s = 1.0 + i / 30.0;
+    f.depth.width = 4;
+    f.depth.height = 3;
+    for (int k = 0; k < 12; ++k) f.depth.data_m.push_back(static_cast<float>(u(rng)));
+    f.state.p_world_body = Eigen::Vector3d(u(rng), u(rng), u(rng));
+    f.state.v_world = Eigen::Vector3d(u(rng), u(rng), u(rng));
+    f.state.q_world_body = Eigen::Quaterniond(u(rng), u(rng), u(rng), u(rng)).normalized();
+    f.goal_world = Eigen::Vector3d(u(rng), u(rng), u(rng));
+    fx.frames.push_back(f);
+  }
+  WriteDecisionFixture(Path("fx"), fx);
+  const DecisionFixture back = ReadDecisionFixture(Path("fx"));
+  ASSERT_EQ(back.frames.size(), 3u);
+  EXPECT_EQ(back.fx, fx.fx);
+  EXPECT_EQ(back.cy, fx.cy);
+  EXPECT_TRUE(back.T_body_camera.isApprox(fx.T_body_camera, 0.0));
+  for (int i = 0; i < 3; ++i) {
+    EXPECT_EQ(back.frames[i].stamp_s, fx.frames[i].stamp_s);
+    EXPECT_EQ(back.frames[i].depth.data_m, fx.frames[i].depth.data_m);
+    EXPECT_EQ(back.frames[i].state.p_world_body, fx.frames[i].state.p_world_body);
+    EXPECT_EQ(back.frames[i].state.v_world, fx.frames[i].state.v_world);
+    EXPECT_EQ(back.frames[i].state.q_world_body.coeffs(), fx.frames[i].state.q_world_body.coeffs());
+    EXPECT_EQ(back.frames[i].goal_world, fx.frames[i].goal_world);
+  }
+  // A file of the wrong shape is named.
+  WriteNpy(Path("fx/goal_world.npy"), NpyArray::FromDouble(std::vector<double>(6), {2, 3}));
+  EXPECT_NE(
+      ErrorOf([&] { ReadDecisionFixture(Path("fx")); }).find("goal_world.npy: dimension 0 is 2, expected 3"),
+      std::string::npos);
+}
+
+}  // namespace
+}  // namespace quad_policy

@@ -1,0 +1,245 @@
+"""The Python inference components without ROS or the C++ build: preprocessing against the exported file,
+both network entries, metadata and config errors, trajectories, the decider, fixtures."""
+
+from __future__ import annotations
+
+import copy
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from quad_il.inference.config import PolicyConfigError, config_from_tree, load_policy_config
+from quad_il.inference.decider import DecisionInputs, PolicyDecider
+from quad_il.inference.fixture import DecisionFixture, FixtureError, read_fixture, write_fixture
+from quad_il.inference.meta import PolicyFormatError, parse_policy_meta
+from quad_il.inference.policy import LoadedPolicy
+from quad_il.inference.preprocessing import PolicyPreprocessing, as_row
+from quad_il.inference.random_policy import export_random_policy
+from quad_il.inference.safety import CameraModel, SafetyVerdict
+from quad_il.inference.trajectory import UniformBspline, braking_trajectory
+from quad_il.learning.config import ModelConfig
+from quad_il.learning.export import META_FILE, load_exported
+
+ROOT = Path(__file__).resolve().parents[2]
+CONFIG = ROOT / "config" / "policy.yaml"
+
+
+@pytest.fixture(scope="module")
+def policies(tmp_path_factory: pytest.TempPathFactory) -> dict[str, LoadedPolicy]:
+    d = tmp_path_factory.mktemp("policies")
+    small = dict(input_height=32, input_width=32)
+    return {
+        "world": LoadedPolicy(export_random_policy(d / "w.ts", ModelConfig(**small), seed=1)),
+        "local_poly_net": LoadedPolicy(
+            export_random_policy(
+                d / "l.ts",
+                ModelConfig(**small, state_frame="local", output_frame="local", output="polynomial"),
+                seed=2,
+                forward_net=True,
+            )
+        ),
+    }
+
+
+def _inputs(seed: int, h: int = 50, w: int = 70) -> tuple[np.ndarray, list[torch.Tensor]]:
+    rng = np.random.default_rng(seed)
+    depth = rng.uniform(0.2, 14.0, (h, w)).astype(np.float32)
+    depth[rng.random((h, w)) < 0.05] = np.inf
+    depth[rng.random((h, w)) < 0.05] = -np.inf
+    depth[rng.random((h, w)) < 0.05] = np.nan
+    q = rng.normal(size=4)
+    rows = [
+        as_row(rng.uniform(-10, 10, 3), 3, "p"),
+        as_row(rng.uniform(-2, 2, 3), 3, "v"),
+        as_row(q / np.linalg.norm(q), 4, "q"),
+        as_row(rng.uniform(-20, 20, 3), 3, "goal"),
+    ]
+    return depth, rows
+
+
+@pytest.mark.parametrize("name", ["world", "local_poly_net"])
+def test_python_preprocessing_and_decoding_equal_the_files_own(policies, name: str) -> None:
+    policy = policies[name]
+    pre = PolicyPreprocessing(policy.meta)
+    for seed in range(3):
+        depth, (p, v, q, g) = _inputs(seed)
+        x = pre.depth(depth)
+        np.testing.assert_array_equal(x[0, 0].numpy(), policy.file_preprocess_depth(depth))
+        y = policy.run(x, pre.state(p, v, q, g), p, v, q, g)
+        np.testing.assert_allclose(pre.decode(y, p, q), policy.file_decode(y, p, q), rtol=0, atol=1e-5)
+        np.testing.assert_allclose(
+            pre.decode(y, p, q), policy.file_forward(depth, p, v, q, g), rtol=0, atol=1e-4
+        )
+
+
+def test_the_network_entry_and_the_files_state_encoding_give_the_same_output(policies) -> None:
+    policy = policies["local_poly_net"]
+    assert policy.has_forward_net and not policies["world"].has_forward_net
+    pre = PolicyPreprocessing(policy.meta)
+    depth, (p, v, q, g) = _inputs(5)
+    x = pre.depth(depth)
+    with torch.inference_mode():
+        via_net = policy.module.forward_net(x, pre.state(p, v, q, g))
+        via_file = policy.module.forward_prepared(x, p, v, q, g)
+    torch.testing.assert_close(via_net, via_file, rtol=0, atol=1e-6)
+
+
+def test_metadata_errors_name_the_key(policies) -> None:
+    meta = copy.deepcopy(policies["world"].raw_meta)
+    parse_policy_meta(meta, "p.ts")
+    bad = copy.deepcopy(meta)
+    bad["output"]["network_representation"] = "spline"
+    with pytest.raises(PolicyFormatError, match="'output.network_representation' must be"):
+        parse_policy_meta(bad, "p.ts")
+    bad = copy.deepcopy(meta)
+    del bad["preprocessing"]["max_depth_m"]
+    with pytest.raises(
+        PolicyFormatError, match="p.ts: policy metadata key 'preprocessing.max_depth_m' is missing"
+    ):
+        parse_policy_meta(bad, "p.ts")
+    bad = copy.deepcopy(meta)
+    bad["format"] = "quad_il_policy/9"
+    with pytest.raises(PolicyFormatError, match="unsupported policy format 'quad_il_policy/9'"):
+        parse_policy_meta(bad, "p.ts")
+    bad = copy.deepcopy(meta)
+    bad["output"]["bspline_order"] = 4
+    with pytest.raises(PolicyFormatError, match="'output.bspline_order' must be 3"):
+        parse_policy_meta(bad, "p.ts")
+
+
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")
+def test_files_that_are_not_policy_exports_are_refused(tmp_path: Path, policies) -> None:
+    plain = torch.jit.script(torch.nn.Linear(2, 2))
+    torch.jit.save(plain, str(tmp_path / "plain.ts"))
+    with pytest.raises(PolicyFormatError, match="not a quad_il policy export"):
+        LoadedPolicy(tmp_path / "plain.ts")
+    with pytest.raises(FileNotFoundError):
+        LoadedPolicy(tmp_path / "missing.ts")
+    # Metadata that disagrees with the file's attributes.
+    module, meta = load_exported(policies["world"].path)
+    meta["output"]["num_ctrl_pts"] = 12
+    torch.jit.save(module, str(tmp_path / "lying.ts"), _extra_files={META_FILE: json.dumps(meta)})
+    with pytest.raises(
+        PolicyFormatError, match="attribute num_ctrl_pts = 10 disagrees with the metadata's 12"
+    ):
+        LoadedPolicy(tmp_path / "lying.ts")
+
+
+def test_the_repository_config_loads_and_errors_name_the_key(tmp_path: Path) -> None:
+    cfg = load_policy_config(CONFIG)
+    assert cfg.num_threads == 1 and cfg.refusal.action == "stop" and cfg.safety.enabled
+    tree = yaml.safe_load(CONFIG.read_text())
+    typo = copy.deepcopy(tree)
+    typo["safety"]["max_vel_mp"] = 3.0
+    with pytest.raises(PolicyConfigError, match="key 'safety.max_vel_mp': Extra inputs are not permitted"):
+        config_from_tree(typo)
+    missing = copy.deepcopy(tree)
+    del missing["goal_tolerance_m"]
+    with pytest.raises(PolicyConfigError, match="key 'goal_tolerance_m': Field required"):
+        config_from_tree(missing)
+    bad = copy.deepcopy(tree)
+    bad["refusal"]["action"] = "land"
+    with pytest.raises(PolicyConfigError, match="key 'refusal.action'.*got 'land'"):
+        config_from_tree(bad)
+    bad = copy.deepcopy(tree)
+    bad["num_threads"] = 0
+    with pytest.raises(PolicyConfigError, match="key 'num_threads'.*got 0"):
+        config_from_tree(bad)
+    with pytest.raises(PolicyConfigError, match="not found"):
+        load_policy_config(tmp_path / "nope.yaml")
+
+
+def test_uniform_bspline_derivatives_match_finite_differences() -> None:
+    rng = np.random.default_rng(2)
+    s = UniformBspline(7.0, 0.25, rng.uniform(-3, 3, (10, 3)))
+    t = np.linspace(0.01, s.duration_s - 0.01, 40)
+    h = 1e-5
+    np.testing.assert_allclose(s.velocity(t), (s.position(t + h) - s.position(t - h)) / (2 * h), atol=1e-6)
+    np.testing.assert_allclose(
+        s.acceleration(t), (s.velocity(t + h) - s.velocity(t - h)) / (2 * h), atol=1e-5
+    )
+    k = s.knots()
+    assert len(k) == 14 and k[3] == 0.0 and k[10] == pytest.approx(s.duration_s)
+    # The derivative control points bound speed and acceleration (convex hull).
+    tt = np.linspace(0, s.duration_s, 400)
+    assert np.linalg.norm(s.velocity(tt), axis=1).max() <= np.linalg.norm(s.velocity_ctrl_pts(), axis=1).max()
+
+
+def test_the_stopping_trajectory_starts_at_the_state_and_stops_within_the_limit() -> None:
+    p0, v0 = np.array([1.0, 2.0, 1.5]), np.array([3.0, -1.0, 0.5])
+    s = braking_trajectory(p0, v0, 2.5, 0.5, 12.0)
+    assert s.num_ctrl_pts == 4 and s.start_time_s == 12.0
+    assert s.duration_s == pytest.approx(2 * np.linalg.norm(v0) / 2.5)
+    np.testing.assert_allclose(s.position(0.0)[0], p0, atol=1e-12)
+    np.testing.assert_allclose(s.velocity(0.0)[0], v0, atol=1e-12)
+    np.testing.assert_allclose(s.velocity(s.duration_s)[0], 0.0, atol=1e-12)
+    np.testing.assert_allclose(s.position(s.duration_s)[0], p0 + v0 * s.duration_s / 3, atol=1e-12)
+    t = np.linspace(0, s.duration_s, 200)
+    assert np.linalg.norm(s.acceleration(t), axis=1).max() <= 2.5 + 1e-9
+    assert braking_trajectory(p0, np.zeros(3), 2.5, 0.5, 0.0).duration_s == 0.5
+    with pytest.raises(ValueError, match="non-finite"):
+        braking_trajectory(np.array([np.nan, 0, 0]), v0, 2.5, 0.5, 0.0)
+
+
+def _camera() -> CameraModel:
+    T = np.eye(4)
+    T[:3, :3] = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], dtype=np.float64)
+    return CameraModel(70, 50, 42.35, 40.3, 34.5, 24.5, T)
+
+
+def test_the_decider_refuses_sends_the_stopping_trajectory_and_counts(policies) -> None:
+    cfg = load_policy_config(CONFIG)
+    decider = PolicyDecider(policies["world"], cfg.safety, cfg.refusal)
+    depth = np.full((50, 70), np.inf, np.float32)
+    q = np.array([0.0, 0.0, 0.0, 1.0])
+    # A random world-frame policy proposes control points near the origin: 12 m away from this vehicle.
+    inp = DecisionInputs(
+        3.0, depth, _camera(), np.array([12.0, 0, 1.5]), np.array([2.0, 0, 0]), q, np.zeros(3)
+    )
+    d = decider.decide(inp)
+    assert d.safety.verdict == SafetyVerdict.START_FAR_FROM_VEHICLE
+    assert d.to_send() is d.stop and d.stop is not None and d.stop.start_time_s == 3.0
+    np.testing.assert_allclose(d.stop.position(0.0)[0], [12.0, 0, 1.5], atol=1e-12)
+    assert d.proposed.start_time_s == 3.0 and d.proposed.knot_dt_s == pytest.approx(2.0 / 7.0)
+    assert decider.counts.counts[SafetyVerdict.START_FAR_FROM_VEHICLE] == 1
+    assert min(d.timings.preprocess_ms, d.timings.forward_ms, d.timings.decode_ms, d.timings.safety_ms) >= 0
+    hover = PolicyDecider(policies["world"], cfg.safety, cfg.refusal.model_copy(update={"action": "hover"}))
+    assert hover.decide(inp).to_send() is None
+    with pytest.raises(ValueError, match="v_world has a NaN/Inf element"):
+        decider.decide(
+            DecisionInputs(3.0, depth, _camera(), np.zeros(3), np.array([np.nan, 0, 0]), q, np.zeros(3))
+        )
+    with pytest.raises(ValueError, match="q_world_body is zero"):
+        decider.decide(
+            DecisionInputs(3.0, depth, _camera(), np.zeros(3), np.zeros(3), np.zeros(4), np.zeros(3))
+        )
+
+
+def test_fixtures_round_trip_and_errors_name_the_file(tmp_path: Path) -> None:
+    rng = np.random.default_rng(4)
+    q = rng.normal(size=(3, 4))
+    fx = DecisionFixture(
+        depth_m=rng.uniform(0, 5, (3, 6, 8)).astype(np.float32),
+        stamp_s=np.array([1.0, 1.1, 1.2]),
+        p_world_body=rng.normal(size=(3, 3)),
+        v_world=rng.normal(size=(3, 3)),
+        q_world_body=q / np.linalg.norm(q, axis=1, keepdims=True),
+        goal_world=rng.normal(size=(3, 3)),
+        camera_k=np.array([4.0, 4.0, 3.5, 2.5]),
+        T_body_camera=np.eye(4),
+    )
+    write_fixture(tmp_path / "fx", fx)
+    back = read_fixture(tmp_path / "fx")
+    for name in ("depth_m", "stamp_s", "p_world_body", "v_world", "q_world_body", "goal_world", "camera_k"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(fx, name))
+    assert back.camera(1).width == 8 and back.camera(1).height == 6
+    np.save(tmp_path / "fx" / "goal_world.npy", np.zeros((2, 3)))
+    with pytest.raises(FixtureError, match="goal_world.npy: shape"):
+        read_fixture(tmp_path / "fx")
+    (tmp_path / "fx" / "stamp_s.npy").unlink()
+    with pytest.raises(FixtureError, match="stamp_s.npy: missing"):
+        read_fixture(tmp_path / "fx")

@@ -1,0 +1,178 @@
+"""The ROS-free parts of the closed-loop evaluation: the episode list, clearance geometry against brute force,
+per-controller summaries, the results format and the report with its BENCH lines."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from quad_il.collection.episodes import StartGoalConfig
+from quad_il.evaluation.episodes import (
+    EpisodeResult,
+    append_result,
+    plan_eval_episodes,
+    read_episodes,
+    read_results,
+    write_episodes,
+)
+from quad_il.evaluation.metrics import Box, clearance_lower_bound, path_length, point_box_distances, summarise
+from quad_il.evaluation.report import bench_lines, write_report
+from quad_il.evaluation.run_eval import eval_sim_config, parse_seeds
+from quad_il.inference.geometry import rotation_matrix
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_episodes_are_seeded_identical_per_call_and_round_trip(tmp_path: Path) -> None:
+    cfg = StartGoalConfig()
+    a = plan_eval_episodes([9000, 9001, 9002], 7, cfg)
+    assert a == plan_eval_episodes([9000, 9001, 9002], 7, cfg)
+    assert [s.seed for s in a] == [9000, 9001, 9002, 9000, 9001, 9002, 9000]
+    # Episodes in the same world differ (the stream depends on the index too).
+    assert a[0].start_world != a[3].start_world
+    for s in a:
+        d = math.dist(s.start_world[:2], s.goal_world[:2])
+        assert cfg.min_distance_m <= d <= cfg.max_distance_m
+    write_episodes(tmp_path / "e.json", a)
+    assert read_episodes(tmp_path / "e.json") == a
+    with pytest.raises(ValueError, match="at least one world seed"):
+        plan_eval_episodes([], 3, cfg)
+
+
+def test_seed_lists_and_ranges_parse() -> None:
+    assert parse_seeds("9000-9003,9010") == [9000, 9001, 9002, 9003, 9010]
+    with pytest.raises(RuntimeError, match="bad seed range"):
+        parse_seeds("5-3")
+
+
+def _brute_distance(p: np.ndarray, b: Box, n: int = 41) -> float:
+    """Distance to a densely sampled solid box (grid of its volume): an upper bound that converges."""
+    g = np.linspace(-0.5, 0.5, n)
+    local = np.stack(np.meshgrid(g, g, g), -1).reshape(-1, 3) * b.size
+    pts = local @ rotation_matrix(b.q_xyzw).T + b.center
+    return float(np.linalg.norm(pts - p, axis=1).min())
+
+
+def test_point_to_oriented_box_distance_matches_sampling() -> None:
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        q = rng.normal(size=4)
+        b = Box(rng.uniform(-2, 2, 3), q / np.linalg.norm(q), rng.uniform(0.3, 2.0, 3))
+        p = rng.uniform(-4, 4, 3)
+        exact = point_box_distances(p[None], [b])[0]
+        approx = _brute_distance(p, b)
+        cell = float(np.linalg.norm(b.size)) / 40
+        assert exact <= approx + 1e-9
+        assert approx - exact <= cell
+    # Inside: 0; an axis-aligned box: closed form.
+    b = Box(np.zeros(3), np.array([0, 0, 0, 1.0]), np.array([2.0, 2.0, 2.0]))
+    np.testing.assert_allclose(
+        point_box_distances(np.array([[0.5, 0, 0], [3, 0, 0], [2, 2, 1]]), [b]), [0.0, 2.0, math.sqrt(2)]
+    )
+
+
+def test_clearance_is_the_centre_distance_less_the_circumscribed_radius() -> None:
+    b = Box(np.zeros(3), np.array([0, 0, 0, 1.0]), np.array([2.0, 2.0, 2.0]))
+    pts = np.array([[3.0, 0, 0], [2.5, 0, 0], [4, 4, 0]])
+    r = 0.5 * math.sqrt(3 * 0.25**2)
+    assert clearance_lower_bound(pts, [b], np.array([0.25, 0.25, 0.25])) == pytest.approx(1.5 - r)
+    assert path_length(pts) == pytest.approx(0.5 + math.hypot(1.5, 4))
+    assert math.isnan(clearance_lower_bound(np.zeros((0, 3)), [b], np.ones(3)))
+
+
+def _result(c: str, i: int, outcome: str, **kw) -> EpisodeResult:
+    return EpisodeResult(c, i, 9000 + i, outcome, "r", **kw)
+
+
+def test_summaries_rates_means_and_latency_percentiles(tmp_path: Path) -> None:
+    rs = [
+        _result(
+            "cpp",
+            0,
+            "goal_reached",
+            time_to_goal_s=10.0,
+            path_length_m=20.0,
+            min_clearance_m=0.4,
+            decision_ms=[1.0, 2.0],
+            counts={"accepted": 5, "velocity_limit": 2},
+        ),
+        _result(
+            "cpp", 1, "collision", min_clearance_m=-0.1, decision_ms=[3.0], counts={"collision_in_depth": 1}
+        ),
+        _result("cpp", 2, "timeout", min_clearance_m=0.8, decision_ms=[4.0]),
+        _result("cpp", 3, "takeoff_failed"),
+    ]
+    s = summarise("cpp", rs)
+    assert (s.success_rate, s.collision_rate, s.timeout_rate, s.other_rate) == (0.25, 0.25, 0.25, 0.25)
+    assert s.mean_time_to_goal_s == 10.0 and s.mean_path_length_m == 20.0
+    assert s.min_clearance_m == -0.1 and s.median_min_clearance_m == pytest.approx(0.4)
+    assert s.decision_ms_median == 2.0 and s.decision_ms_p99 == 4.0
+    assert s.refusals == 3
+    with pytest.raises(ValueError, match="no results"):
+        summarise("py", rs)
+    with pytest.raises(ValueError, match="outcome must be one of"):
+        _result("cpp", 5, "crashed")
+    # The results file round-trips (NaN included) and appends.
+    for r in rs:
+        append_result(tmp_path / "cpp.jsonl", r)
+    back = read_results(tmp_path / "cpp.jsonl")
+    assert [r.outcome for r in back] == [r.outcome for r in rs]
+    assert math.isnan(back[3].time_to_goal_s) and back[0].counts == {"accepted": 5, "velocity_limit": 2}
+
+
+def test_the_report_has_the_table_plots_and_bench_lines(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    specs = plan_eval_episodes([9000, 9001], 2, StartGoalConfig())
+    traj = [[0.0, *specs[0].start_world], [1.0, *specs[0].goal_world]]
+    for c, outcome in (("expert", "goal_reached"), ("cpp", "collision")):
+        for spec in specs:
+            append_result(
+                tmp_path / f"{c}.jsonl",
+                EpisodeResult(
+                    c,
+                    spec.index,
+                    spec.seed,
+                    outcome,
+                    "r",
+                    time_to_goal_s=9.0,
+                    trajectory=traj,
+                    decision_ms=[2.0, 2.5],
+                ),
+            )
+    report = write_report(
+        tmp_path,
+        ["expert", "py", "cpp"],
+        specs,
+        {"py": "quad_il/policy_node.py is not built"},
+        {"policy": "p.ts", "episode_timeout_s": 60},
+    )
+    text = report.read_text()
+    assert "| expert (fast_planner) | 2 | 100 % | 0 % |" in text
+    assert "| policy, C++ (LibTorch) | 2 | 0 % | 100 % |" in text
+    assert "not run: quad_il/policy_node.py is not built" in text
+    for png in ("outcomes.png", "latency.png", "trajectories.png"):
+        assert (tmp_path / png).stat().st_size > 0 and f"({png})" in text
+    out = capsys.readouterr().out.splitlines()
+    assert "BENCH eval_expert_success_rate 1.0000 ratio" in out
+    assert "BENCH eval_cpp_collision_rate 1.0000 ratio" in out
+    assert not any("eval_py_" in line for line in out)
+    assert len(bench_lines({})) == 0
+
+
+def test_the_evaluation_simulator_config_is_lockstepped_with_the_controller(tmp_path: Path) -> None:
+    cfg = eval_sim_config(ROOT / "config" / "sim.yaml", "cpp", 10.0)
+    assert cfg["time"]["mode"] == "lockstep" and cfg["lockstep"]["depth_consumers"] == ["policy"]
+    assert cfg["lockstep"]["wait_for_command"] is True
+    assert cfg["world"]["generator"]["density_boxes_per_100m2"] == 10.0
+    assert Path(cfg["vehicle_file"]).is_absolute() and Path(cfg["vehicle_file"]).is_file()
+    assert eval_sim_config(ROOT / "config" / "sim.yaml", "expert", None)["lockstep"]["depth_consumers"] == [
+        "fast_planner"
+    ]
+    # Every key the simulator reads is still there (the file is the base config with values changed).
+    base = yaml.safe_load((ROOT / "config" / "sim.yaml").read_text())
+    assert set(cfg) == set(base)

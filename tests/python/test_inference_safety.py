@@ -1,0 +1,181 @@
+"""The Python safety layer (quad_il.inference.safety): one test per refusal reason, a safe plan accepted, the
+radius as margin, and the depth test against a brute-force scan of every pixel. The C++ twin has the same
+cases (src/quad_policy/test/test_safety.cpp); test_inference_parity.py holds the two to each other."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from quad_il.inference.config import SafetyConfig
+from quad_il.inference.safety import (
+    CameraModel,
+    SafetyVerdict,
+    VerdictCounts,
+    check_trajectory,
+    find_depth_collision,
+    safety_sample_times,
+)
+from quad_il.inference.trajectory import UniformBspline
+
+W, H = 160, 120
+VEHICLE = np.array([-0.1, 0.0, 0.0])  # 0.1 m behind the camera
+
+
+def camera(T: np.ndarray | None = None) -> CameraModel:
+    """160 x 120, Fast-Planner's field of view, at the world origin looking along world +x (by default)."""
+    if T is None:
+        T = np.eye(4)
+        T[:3, :3] = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], dtype=np.float64)
+    return CameraModel(W, H, 96.8, 96.8, 79.5, 59.5, T)
+
+
+def uniform(depth_m: float) -> np.ndarray:
+    return np.full((H, W), depth_m, dtype=np.float32)
+
+
+def line(speed: float, y_offset: float = 0.0, zigzag: float = 0.0) -> UniformBspline:
+    """Straight along +x from the vehicle, K = 10 over 2 s; zigzag: alternating lateral control points."""
+    dt = 2.0 / 7.0
+    tau = (np.arange(10) - 1.0) * dt
+    ctrl = np.zeros((10, 3))
+    ctrl[:, 0] = -0.1 + speed * tau
+    ctrl[:, 1] = y_offset + zigzag * (-1.0) ** np.arange(10)
+    return UniformBspline(5.0, dt, ctrl)
+
+
+def cfg(**kw: object) -> SafetyConfig:
+    base = dict(
+        enabled=True,
+        max_vel_mps=5.0,
+        max_acc_mps2=10.0,
+        max_start_error_m=1.0,
+        vehicle_radius_m=0.25,
+        sample_dt_s=0.05,
+        check_horizon_s=0.0,
+        collision_min_pixels=1,
+    )
+    base.update(kw)
+    return SafetyConfig(**base)
+
+
+def check(traj: UniformBspline, depth: np.ndarray, c: SafetyConfig | None = None):
+    return check_trajectory(traj, VEHICLE, depth, camera(), c or cfg())
+
+
+def test_a_safe_plan_in_free_space_is_accepted() -> None:
+    r = check(line(2.0), uniform(np.inf))
+    assert r.verdict == SafetyVerdict.ACCEPTED and r.verdict.label == "accepted", r.reason
+    assert check(line(2.0), uniform(6.0)).accepted  # a wall beyond reach
+
+
+def test_non_finite_control_points_are_refused_even_when_disabled() -> None:
+    t = line(2.0)
+    t.ctrl_world[4, 1] = np.nan
+    r = check(t, uniform(np.inf), cfg(enabled=False))
+    assert r.verdict == SafetyVerdict.NON_FINITE_OUTPUT and r.verdict.label == "non_finite_output"
+    assert "control point 4" in r.reason
+
+
+def test_control_point_speed_above_the_limit_is_refused() -> None:
+    r = check(line(6.0), uniform(np.inf))
+    assert r.verdict == SafetyVerdict.VELOCITY_LIMIT and r.verdict.label == "velocity_limit"
+    assert r.value == pytest.approx(6.0, abs=1e-9)
+    assert check(line(6.0), uniform(np.inf), cfg(enabled=False)).accepted
+
+
+def test_control_point_acceleration_above_the_limit_is_refused() -> None:
+    r = check(line(2.0, zigzag=0.3), uniform(np.inf))
+    assert r.verdict == SafetyVerdict.ACCELERATION_LIMIT and r.verdict.label == "acceleration_limit"
+    assert r.value == pytest.approx(1.2 / (2.0 / 7.0) ** 2, abs=1e-9)  # |c_i - 2 c_i+1 + c_i+2| / dt^2
+
+
+def test_a_trajectory_starting_far_from_the_vehicle_is_refused() -> None:
+    r = check(line(2.0, y_offset=2.0), uniform(np.inf))
+    assert r.verdict == SafetyVerdict.START_FAR_FROM_VEHICLE and r.verdict.label == "start_far_from_vehicle"
+    assert r.value == pytest.approx(2.0, abs=1e-9)
+
+
+def test_a_trajectory_into_a_wall_seen_in_the_depth_image_is_refused() -> None:
+    r = check(line(2.0), uniform(3.0))
+    assert r.verdict == SafetyVerdict.COLLISION_IN_DEPTH and r.verdict.label == "collision_in_depth"
+    # First sample whose sphere reaches 3 m: x = 2 t - 0.1 > 3 - 0.25 at t = 1.45 (1.55 with r = 0.1).
+    assert r.value == pytest.approx(1.45, abs=1e-9), r.reason
+    assert check(line(2.0), uniform(3.0), cfg(vehicle_radius_m=0.1)).value == pytest.approx(1.55, abs=1e-9)
+    assert check(line(2.0), uniform(3.0), cfg(check_horizon_s=1.0)).accepted
+
+
+def test_too_near_pixels_are_occupied_and_invalid_pixels_are_free() -> None:
+    assert check(line(2.0), uniform(-np.inf)).verdict == SafetyVerdict.COLLISION_IN_DEPTH
+    assert check(line(2.0), uniform(np.nan)).accepted
+
+
+def test_the_vehicle_radius_is_the_margin_beside_an_obstacle() -> None:
+    d = uniform(np.inf)
+    d[:, :40] = 3.0  # a pillar at 3 m on the left (world +y) of the image
+    assert check(line(2.0), d).accepted
+    assert check(line(2.0, 1.1), d, cfg(max_start_error_m=2.0)).verdict == SafetyVerdict.COLLISION_IN_DEPTH
+    assert check(line(2.0, 1.1), d, cfg(max_start_error_m=2.0, vehicle_radius_m=0.1)).accepted
+
+
+def test_samples_behind_the_camera_or_holding_it_are_not_judged() -> None:
+    wall = uniform(0.5)
+    samples = np.array([[-0.1, 0, 0], [-2.0, 0, 0]], dtype=np.float64)
+    assert not find_depth_collision(samples, 0.25, 1, wall, camera()).collides
+    hit = find_depth_collision(np.vstack([samples, [0.4, 0, 0]]), 0.25, 1, wall, camera())
+    assert hit.collides and hit.sample_index == 2
+
+
+def _brute_force(c: np.ndarray, r: float, depth: np.ndarray, cam: CameraModel) -> int:
+    if c @ c <= r * r:
+        return 0
+    u, v = np.meshgrid(np.arange(W), np.arange(H))
+    dirs = np.stack([(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, np.ones_like(u, dtype=float)], -1)
+    a = np.sum(dirs * dirs, -1)
+    b = dirs @ c
+    disc = b * b - a * (c @ c - r * r)
+    t_far = (b + np.sqrt(np.maximum(disc, 0))) / a
+    d = depth.astype(np.float64)
+    known = ~np.isnan(d) & ~np.isposinf(d)
+    return int(
+        np.count_nonzero((disc >= 0) & known & (t_far > np.maximum(np.nan_to_num(d, neginf=0.0), 0.0)))
+    )
+
+
+def test_the_bounding_rectangle_finds_every_occupied_pixel_of_a_brute_force_scan() -> None:
+    rng = np.random.default_rng(11)
+    cam = camera(np.eye(4))  # samples in the camera frame
+    collisions = 0
+    for trial in range(150):
+        d = uniform(np.inf)
+        for _ in range(8):
+            u0, v0 = rng.integers(0, W), rng.integers(0, H)
+            d[v0 : v0 + 1 + rng.integers(0, 60), u0 : u0 + 1 + rng.integers(0, 60)] = rng.uniform(0.3, 6.0)
+        c = np.array([rng.uniform(-3, 3), rng.uniform(-3, 3), rng.uniform(-1, 6)])
+        r = rng.uniform(0.05, 0.8)
+        expected = _brute_force(c, r, d, cam)
+        hit = find_depth_collision(c[None], r, 1, d, cam)
+        assert hit.collides == (expected > 0), trial
+        if hit.collides:
+            assert hit.occupied_pixels == expected, trial
+            collisions += 1
+    assert 20 < collisions < 130  # both outcomes exercised
+
+
+def test_sample_times_are_integer_steps_ending_at_the_horizon() -> None:
+    t = safety_sample_times(line(1.0), cfg(sample_dt_s=0.3))
+    assert len(t) == 8 and t[6] == 6 * 0.3 and t[-1] == 2.0
+    assert len(safety_sample_times(line(1.0), cfg(sample_dt_s=0.5))) == 5
+
+
+def test_verdict_counts_sum_the_refusals() -> None:
+    c = VerdictCounts()
+    for v in (SafetyVerdict.ACCEPTED, SafetyVerdict.VELOCITY_LIMIT, SafetyVerdict.COLLISION_IN_DEPTH):
+        c.add(v)
+    c.add(SafetyVerdict.COLLISION_IN_DEPTH)
+    assert c.counts[SafetyVerdict.COLLISION_IN_DEPTH] == 2 and c.refused == 3
+
+
+def test_depth_and_camera_sizes_must_agree() -> None:
+    with pytest.raises(ValueError, match="depth image"):
+        find_depth_collision(np.zeros((1, 3)), 0.25, 1, np.zeros((10, 10), np.float32), camera())

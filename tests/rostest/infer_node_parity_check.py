@@ -1,0 +1,251 @@
+#!/usr/bin/env python3
+"""rostest node: the C++ node (quad_policy/policy_node, namespace /cpp) and the Python node (quad_il
+policy_node.py, namespace /py) are fed the same recorded inputs as ROS messages (odometry, camera info, goal,
+32FC1 depth frames, the camera's static transform) and must publish the same decisions and the same B-splines
+(control points within 1e-4), acknowledge every frame, and skip the same frames for the same reasons (no goal
+yet, a depth frame of the wrong encoding). No simulator and no tracker: the nodes only publish
+(~send_to_tracker false), at a replanning rate of half the frame rate. The policy is a seeded random-init
+export with local state and output frames."""
+
+from __future__ import annotations
+
+import math
+import tempfile
+import threading
+import time
+import unittest
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import rospy
+import rostest
+import tf2_ros
+import yaml
+from geometry_msgs.msg import PoseStamped, TransformStamped
+from nav_msgs.msg import Odometry
+from sensor_msgs.msg import CameraInfo, Image
+
+from quad_il.inference.random_policy import export_random_policy
+from quad_il.learning.config import ModelConfig
+from quad_il.learning.synthetic import make_synthetic_arrays
+from quad_msgs.msg import Bspline, FrameAck, PolicyDecision
+
+NAMESPACES = ("cpp", "py")
+H, W = 60, 80
+K = np.array([387.2 * W / 640, 0, (W - 1) / 2, 0, 387.2 * H / 480, (H - 1) / 2, 0, 0, 1])
+
+
+def exact_time(t: float) -> rospy.Time:
+    """The nearest nanosecond (rospy.Time.from_sec truncates: from_sec(2.4) is 2.399999999 s)."""
+    secs = math.floor(t)
+    nsecs = round((t - secs) * 1e9)
+    return rospy.Time(secs + nsecs // 1_000_000_000, nsecs % 1_000_000_000)
+
+
+def key(stamp: rospy.Time) -> float:
+    """Frames are matched by stamp, rounded to the microsecond."""
+    return round(stamp.to_sec(), 6)
+
+
+class NodeOutputs:
+    """Everything one namespace's node publishes, keyed by the depth frame's stamp."""
+
+    def __init__(self, ns: str) -> None:
+        self.lock = threading.Lock()
+        self.decisions: dict[float, PolicyDecision] = {}
+        self.bsplines: dict[int, Bspline] = {}
+        self.acks: dict[float, FrameAck] = {}
+        rospy.Subscriber(f"/{ns}/policy/decision", PolicyDecision, self._on_decision, queue_size=100)
+        rospy.Subscriber(f"/{ns}/planner/bspline", Bspline, self._on_bspline, queue_size=100)
+        rospy.Subscriber(f"/{ns}/sim/frame_ack", FrameAck, self._on_ack, queue_size=100)
+
+    def _on_decision(self, m: PolicyDecision) -> None:
+        with self.lock:
+            self.decisions[key(m.header.stamp)] = m
+
+    def _on_bspline(self, m: Bspline) -> None:
+        with self.lock:
+            self.bsplines[m.traj_id] = m
+
+    def _on_ack(self, m: FrameAck) -> None:
+        with self.lock:
+            self.acks[key(m.stamp)] = m
+
+
+def depth_message(depth: np.ndarray, stamp: rospy.Time, encoding: str = "32FC1") -> Image:
+    m = Image()
+    m.header.stamp = stamp
+    m.header.frame_id = "camera"
+    m.height, m.width = depth.shape
+    m.encoding = encoding
+    m.is_bigendian = 0
+    m.step = 4 * depth.shape[1]
+    m.data = np.ascontiguousarray(depth, dtype="<f4").tobytes()
+    return m
+
+
+class InferNodeParity(unittest.TestCase):
+    def test_cpp_and_python_nodes_publish_the_same_decisions(self) -> None:
+        import roslaunch
+
+        work = Path(tempfile.mkdtemp(prefix="infer_node_parity_"))
+        model = ModelConfig(input_height=32, input_width=32, state_frame="local", output_frame="local")
+        policy = export_random_policy(work / "policy.ts", model, seed=3)
+        # The repository config with a replanning rate: frames come 0.1 s apart, every other one is decided.
+        cfg = yaml.safe_load(Path(rospy.get_param("~policy_config")).read_text())
+        cfg["replan_rate_hz"] = 5.0
+        config_path = work / "policy.yaml"
+        config_path.write_text(yaml.safe_dump(cfg))
+        outputs = {ns: NodeOutputs(ns) for ns in NAMESPACES}
+        pubs = defaultdict(dict)
+        for ns in NAMESPACES:
+            pubs[ns]["odom"] = rospy.Publisher(f"/{ns}/odom", Odometry, queue_size=100, tcp_nodelay=True)
+            pubs[ns]["depth"] = rospy.Publisher(f"/{ns}/camera/depth/image", Image, queue_size=100)
+            pubs[ns]["info"] = rospy.Publisher(
+                f"/{ns}/camera/depth/camera_info", CameraInfo, queue_size=1, latch=True
+            )
+            pubs[ns]["goal"] = rospy.Publisher(f"/{ns}/planner/goal", PoseStamped, queue_size=1, latch=True)
+        tf = tf2_ros.StaticTransformBroadcaster()
+        t = TransformStamped()
+        t.header.frame_id, t.child_frame_id = "base_link", "camera"
+        t.transform.translation.x = 0.1
+        t.transform.rotation.x, t.transform.rotation.y = -0.5, 0.5  # optical frame looking along base_link +x
+        t.transform.rotation.z, t.transform.rotation.w = -0.5, 0.5
+        tf.sendTransform(t)
+
+        launch = roslaunch.scriptapi.ROSLaunch()
+        launch.start()
+        procs = []
+        for ns, (pkg, node_type) in zip(
+            NAMESPACES, [("quad_policy", "policy_node"), ("quad_il", "policy_node.py")], strict=True
+        ):
+            rospy.set_param(f"/{ns}/policy_node/config", str(config_path))
+            rospy.set_param(f"/{ns}/policy_node/policy_file", str(policy))
+            rospy.set_param(f"/{ns}/policy_node/send_to_tracker", False)
+            procs.append(
+                launch.launch(
+                    roslaunch.core.Node(pkg, node_type, name="policy_node", namespace=ns, output="log")
+                )
+            )
+        try:
+            self._feed_and_compare(outputs, pubs)
+            for p in procs:
+                self.assertTrue(p.is_alive(), f"{p.name} died")
+        finally:
+            for p in procs:
+                p.stop()
+            launch.stop()
+
+    def _wait_connected(self, pubs) -> None:
+        deadline = time.monotonic() + 60.0
+        while time.monotonic() < deadline:
+            if all(
+                p["depth"].get_num_connections() > 0 and p["odom"].get_num_connections() > 0
+                for p in pubs.values()
+            ):
+                # A message published while a fresh connection's handshake is still settling can be lost.
+                time.sleep(1.0)
+                return
+            time.sleep(0.05)
+        self.fail("the policy nodes did not subscribe within 60 s")
+
+    def _send_frame(
+        self, outputs, pubs, depth: np.ndarray, stamp: float, odom: Odometry | None, encoding: str = "32FC1"
+    ) -> None:
+        s = exact_time(stamp)
+        for ns in NAMESPACES:
+            if odom is not None:
+                pubs[ns]["odom"].publish(odom)
+        time.sleep(0.05)  # the odometry is in before the frame (the nodes pair the newest odometry <= frame)
+        for ns in NAMESPACES:
+            pubs[ns]["depth"].publish(depth_message(depth, s, encoding))
+        deadline = time.monotonic() + 30.0
+        while time.monotonic() < deadline:
+            if all(stamp in o.acks and stamp in o.decisions for o in outputs.values()):
+                return
+            time.sleep(0.01)
+        self.fail(
+            f"frame {stamp}: no decision/ack from {[n for n, o in outputs.items() if stamp not in o.acks]}"
+        )
+
+    def _feed_and_compare(self, outputs, pubs) -> None:
+        self._wait_connected(pubs)
+        a = make_synthetic_arrays(num_episodes=2, samples_per_episode=5, height=H, width=W, seed=11)
+        depth = a["depth_m"].astype(np.float32)
+        rng = np.random.default_rng(0)
+        depth[rng.random(depth.shape) < 0.02] = -np.inf
+        info = CameraInfo()
+        info.header.frame_id = "camera"
+        info.height, info.width = H, W
+        info.K = K.tolist()
+        for ns in NAMESPACES:
+            pubs[ns]["info"].publish(info)
+
+        def odom(i: int, stamp: float) -> Odometry:
+            m = Odometry()
+            m.header.stamp = exact_time(stamp)
+            m.header.frame_id, m.child_frame_id = "world", "base_link"
+            m.pose.pose.position.x, m.pose.pose.position.y, m.pose.pose.position.z = a["p_world_body"][
+                i
+            ].tolist()
+            q = a["q_world_body"][i].astype(float)
+            o = m.pose.pose.orientation
+            o.x, o.y, o.z, o.w = q.tolist()
+            m.twist.twist.linear.x, m.twist.twist.linear.y, m.twist.twist.linear.z = a["v_world"][i].tolist()
+            return m
+
+        # Before any goal: both skip with no_goal (and acknowledge).
+        self._send_frame(outputs, pubs, depth[0], 1.0, odom(0, 0.998))
+        goal = PoseStamped()
+        goal.header.frame_id = "world"
+        goal.pose.position.x, goal.pose.position.y, goal.pose.position.z = a["goal_world"][0].tolist()
+        goal.pose.orientation.w = 1.0
+        for ns in NAMESPACES:
+            pubs[ns]["goal"].publish(goal)
+        time.sleep(0.5)
+        stamps = [1.0]
+        for i in range(len(depth)):
+            stamp = round(2.0 + 0.1 * i, 6)
+            self._send_frame(outputs, pubs, depth[i], stamp, odom(i, stamp - 0.002))
+            stamps.append(stamp)
+        # A frame of the wrong encoding: skipped by both, still acknowledged.
+        self._send_frame(outputs, pubs, depth[0], 9.0, None, encoding="16UC1")
+        stamps.append(9.0)
+        time.sleep(0.5)  # the last B-splines in flight
+
+        cpp, py = outputs["cpp"], outputs["py"]
+        statuses = []
+        for s in stamps:
+            dc, dp = cpp.decisions[s], py.decisions[s]
+            statuses.append(dc.status)
+            self.assertEqual(
+                (dc.status, dc.verdict, dc.accepted, dc.action),
+                (dp.status, dp.verdict, dp.accepted, dp.action),
+                f"frame {s}",
+            )
+            self.assertEqual((dc.node, dp.node), ("cpp", "py"))
+            for o in (cpp, py):
+                self.assertEqual(o.acks[s].consumer, "policy")
+            if dc.traj_id:
+                bc, bp = cpp.bsplines[dc.traj_id], py.bsplines[dp.traj_id]
+                self.assertEqual(bc.start_time, bp.start_time)
+                self.assertEqual(key(bc.start_time), s)
+                np.testing.assert_allclose(bc.knots, bp.knots, rtol=0, atol=1e-12)
+                pc = np.array([[p.x, p.y, p.z] for p in bc.pos_pts])
+                pp = np.array([[p.x, p.y, p.z] for p in bp.pos_pts])
+                np.testing.assert_allclose(pc, pp, rtol=0, atol=1e-4, err_msg=f"frame {s}")
+        self.assertEqual(statuses[0], "no_goal")
+        self.assertEqual(statuses[-1], "bad_input")
+        self.assertEqual(statuses[1:-1], ["decided", "rate_limited"] * (len(depth) // 2))
+        # The cumulative counts agree too.
+        last_c, last_p = cpp.decisions[stamps[-1]], py.decisions[stamps[-1]]
+        self.assertEqual(
+            dict(zip(last_c.count_names, last_c.count_values, strict=True)),
+            dict(zip(last_p.count_names, last_p.count_values, strict=True)),
+        )
+
+
+if __name__ == "__main__":
+    rospy.init_node("infer_node_parity_check")
+    rostest.rosrun("quad_il", "infer_node_parity_check", InferNodeParity)
