@@ -2,11 +2,13 @@
 #   make demo    the main job end to end on the default configuration
 #   make test    the whole test suite (lint, gtest, rostest, pytest) with a summary line
 #   make build   idempotent set-up (apt, .venv, pip) + catkin build
+#   make eval POLICY=runs/x/policy.ts [SEEDS=9000-9019] [EPISODES=20] [DENSITY=] [CONTROLLERS=expert,py,cpp] [EVAL_OUT=results/eval]
+#                closed-loop evaluation of expert, Python and C++ policy on held-out worlds (docs/inference.md)
 #   make shell   a shell with the workspace sourced
 #   make bench-<component>   BENCH lines of one component (sim, tracker, planner, collector, train, inference, scale)
 #   make lint / make format
 SHELL := /bin/bash
-.PHONY: setup build test demo shell lint format clean
+.PHONY: setup build test demo eval shell lint format clean
 
 setup:
 	@bash scripts/setup.sh
@@ -19,6 +21,16 @@ test: build
 
 demo: build
 	@bash scripts/demo.sh
+
+SEEDS ?= 9000-9019
+EPISODES ?= 20
+DENSITY ?=
+CONTROLLERS ?= expert,py,cpp
+EVAL_OUT ?= results/eval
+eval: build
+	@test -n "$(POLICY)" || { echo "make eval: POLICY=<exported policy.ts> is required (a training run's policy.ts)" >&2; exit 2; }
+	@source scripts/env.sh && python -m quad_il.evaluation.run_eval --policy "$(POLICY)" --seeds "$(SEEDS)" \
+	  --episodes "$(EPISODES)" --controllers "$(CONTROLLERS)" --out "$(EVAL_OUT)" $(if $(DENSITY),--density $(DENSITY),)
 
 bench-%: build
 	@bash scripts/bench.sh $*
