@@ -114,7 +114,10 @@ class TrackerFlightTest(unittest.TestCase):
         goto = rospy.ServiceProxy("tracker/goto", Goto)
         client = actionlib.SimpleActionClient("tracker/track_bspline", TrackBsplineAction)
         self.assertTrue(client.wait_for_server(rospy.Duration(60.0)), "no TrackBspline server")
-        wait_for(lambda: rec.last is not None, "odometry")
+        # The tracker has odometry once it answers it (a goto is refused before that).
+        wait_for(
+            lambda: rec.last is not None and len(rec.cmds) > 0, "odometry and the tracker's first command"
+        )
         self.assertLess(rec.last[2], 0.2, "the vehicle should start on the ground")
 
         # Take-off with the line tracker.

@@ -157,6 +157,19 @@ bool BsplineTracker::Cancel(uint64_t goal_id) {
   return false;
 }
 
+void BsplineTracker::AbortAll(const std::string& reason) {
+  if (running_) {
+    EndRunning(GoalEventKind::kAborted, has_last_state_ ? last_state_.t_s : 0.0, reason);
+    last_ref_ = Hold();
+  }
+  if (pending_) {
+    events_.push_back(
+        {pending_->id, GoalEventKind::kAborted, 0.0, 0.0, reason + " (before the goal started)"});
+    pending_.reset();
+  }
+  completed_ = false;
+}
+
 std::vector<GoalEvent> BsplineTracker::TakeEvents() {
   std::vector<GoalEvent> out;
   out.swap(events_);

@@ -49,6 +49,8 @@ TrackerConfig ReadTrackerConfig(quad_common::StrictYaml* y) {
   c.odom_timeout_s = y->Get<double>("node.odom_timeout_s", quad_common::Positive());
   c.watchdog_rate_hz = y->Get<double>("node.watchdog_rate_hz", quad_common::InRange(1.0, 2000.0));
   c.feedback_rate_hz = y->Get<double>("node.feedback_rate_hz", quad_common::InRange(0.1, 1000.0));
+  // Optional (GetOr): added after config/tracker.yaml was first written; the default is the documented value.
+  c.max_odom_jump_m = y->GetOr<double>("node.max_odom_jump_m", c.max_odom_jump_m, quad_common::Positive());
   y->CheckAllKeysUsed();
   // Cross-field checks of the structs themselves (messages name the field).
   try {

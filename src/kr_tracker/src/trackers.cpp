@@ -121,12 +121,19 @@ TrackerStatus LineTracker::status() const {
   return completed_ ? TrackerStatus::kSucceeded : TrackerStatus::kHolding;
 }
 
-std::string LineTracker::SetGoal(const Eigen::Vector3d& p_goal_world, double yaw_goal_rad, double max_vel_mps,
-                                 double max_acc_mps2) {
+std::string LineTracker::ValidateGoal(const Eigen::Vector3d& p_goal_world, double yaw_goal_rad,
+                                      double max_vel_mps, double max_acc_mps2) {
   if (!p_goal_world.allFinite()) return "goal position is not finite";
   if (!std::isfinite(yaw_goal_rad)) return "goal yaw is not finite";
   if (!std::isfinite(max_vel_mps) || !std::isfinite(max_acc_mps2))
     return "velocity/acceleration limit not finite";
+  return "";
+}
+
+std::string LineTracker::SetGoal(const Eigen::Vector3d& p_goal_world, double yaw_goal_rad, double max_vel_mps,
+                                 double max_acc_mps2) {
+  const std::string why = ValidateGoal(p_goal_world, yaw_goal_rad, max_vel_mps, max_acc_mps2);
+  if (!why.empty()) return why;
   Goal g;
   g.p_world = p_goal_world;
   g.yaw_rad = WrapAngle(yaw_goal_rad);

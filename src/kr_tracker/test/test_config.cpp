@@ -61,5 +61,25 @@ TEST(TrackerConfig, MissingUnknownAndOutOfRangeKeysAreNamed) {
             std::string::npos);
 }
 
+TEST(TrackerConfig, OdometryJumpLimitIsOptionalAndChecked) {
+  // The repository file without the key (whether or not it has it): the documented default.
+  std::istringstream lines(ReadRepoConfig());
+  std::string without, line;
+  while (std::getline(lines, line)) {
+    if (line.find("max_odom_jump_m") == std::string::npos) without += line + "\n";
+  }
+  quad_common::StrictYaml y0 = quad_common::StrictYaml::FromString(without, "tracker.yaml");
+  EXPECT_DOUBLE_EQ(ReadTrackerConfig(&y0).max_odom_jump_m, 1.0);
+  auto with_value = [&](const std::string& v) {
+    return Replace(without, "node:\n", "node:\n  max_odom_jump_m: " + v + "\n");
+  };
+  quad_common::StrictYaml y1 = quad_common::StrictYaml::FromString(with_value("2.5"), "tracker.yaml");
+  EXPECT_DOUBLE_EQ(ReadTrackerConfig(&y1).max_odom_jump_m, 2.5);
+  for (const char* bad : {"0", "-1"}) {
+    const std::string why = LoadError(with_value(bad));
+    EXPECT_NE(why.find("node.max_odom_jump_m"), std::string::npos) << why;
+  }
+}
+
 }  // namespace
 }  // namespace kr_tracker

@@ -70,6 +70,10 @@ class BsplineTracker : public Tracker {
   std::string AddGoal(uint64_t goal_id, const BsplineGoalSpec& spec, double now_s, const VehicleState& state);
   // Cancels a running or pending goal (the vehicle holds the current reference). False if the id is unknown.
   bool Cancel(uint64_t goal_id);
+  // Aborts the running and the pending goal (kAborted events with `reason`; the pending one's reason says it
+  // had not started) and holds the current reference. Used when the vehicle is re-anchored (episode reset,
+  // odometry jump). Does not change whether the tracker is active.
+  void AbortAll(const std::string& reason);
   // Events since the last call, in order.
   std::vector<GoalEvent> TakeEvents();
   // The running goal's id and remaining time at t_s.

@@ -25,6 +25,9 @@ struct TrackerConfig {
   double watchdog_rate_hz = 200.0;        // rate of the stale-odometry check and of the held command
   double feedback_rate_hz = 20.0;         // TrackBspline feedback rate
   bool bspline_auto_activate = true;      // accepting a TrackBspline goal switches to the B-spline tracker
+  // Safety net for resets the node does not hear about on /sim/status: odometry that moves farther than this
+  // in one message re-anchors the trackers (docs/kr_tracker.md, "Episode resets"). Optional key, default 1 m.
+  double max_odom_jump_m = 1.0;
 };
 
 TrackerConfig LoadTrackerConfig(const std::string& yaml_path);

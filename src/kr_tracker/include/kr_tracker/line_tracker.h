@@ -57,6 +57,9 @@ class LineTracker : public Tracker {
   // the configured defaults. Returns "" or why the goal is refused (non-finite values).
   std::string SetGoal(const Eigen::Vector3d& p_goal_world, double yaw_goal_rad, double max_vel_mps,
                       double max_acc_mps2);
+  // SetGoal's checks alone: "" or why the goal would be refused.
+  static std::string ValidateGoal(const Eigen::Vector3d& p_goal_world, double yaw_goal_rad,
+                                  double max_vel_mps, double max_acc_mps2);
   // Duration of the current profile (0 when holding).
   double duration_s() const { return segment_.duration_s(); }
 

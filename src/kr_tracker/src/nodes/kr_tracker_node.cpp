@@ -5,9 +5,12 @@
 // One SO3Command (and PositionCommand) per odometry message, stamped with the odometry's stamp, so the
 // simulator's lockstep can wait for exactly that command. If odometry goes stale (older than
 // node.odom_timeout_s in ROS time) a watchdog keeps publishing the safe hover command (weight-compensating
-// thrust, level attitude, last yaw).
+// thrust, level attitude, last yaw). The logic (trackers, controller, episode resets) is
+// kr_tracker::TrackerManager; this file converts messages and maps goal events onto the action's goal
+// handles.
 #include <actionlib/server/action_server.h>
 #include <nav_msgs/Odometry.h>
+#include <quad_msgs/EpisodeStatus.h>
 #include <quad_msgs/Goto.h>
 #include <quad_msgs/PositionCommand.h>
 #include <quad_msgs/SO3Command.h>
@@ -21,10 +24,8 @@
 #include <stdexcept>
 #include <string>
 
-#include "kr_tracker/bspline_tracker.h"
 #include "kr_tracker/config.h"
-#include "kr_tracker/line_tracker.h"
-#include "kr_tracker/so3_controller.h"
+#include "kr_tracker/tracker_manager.h"
 
 namespace kr_tracker {
 namespace {
@@ -72,14 +73,14 @@ class TrackerNode {
       : nh_(nh),
         config_(LoadTrackerConfig(RequiredParam(pnh, "tracker_config"))),
         vehicle_(quad_sim::LoadVehicleParams(RequiredParam(pnh, "vehicle_config"))),
-        controller_(config_.gains, vehicle_.mass_kg, vehicle_.gravity_mps2, vehicle_.MaxThrustN()),
-        line_(config_.line),
-        bspline_(config_.bspline),
+        manager_(config_, vehicle_.mass_kg, vehicle_.gravity_mps2, vehicle_.MaxThrustN()),
         server_(nh, "tracker/track_bspline", false) {
-    trackers_ = {{"hover", &hover_}, {"line", &line_}, {"bspline", &bspline_}};
     so3_pub_ = nh_.advertise<quad_msgs::SO3Command>("so3_cmd", 10);
     pos_pub_ = nh_.advertise<quad_msgs::PositionCommand>("position_cmd", 10);
     odom_sub_ = nh_.subscribe("odom", 10, &TrackerNode::OnOdom, this, ros::TransportHints().tcpNoDelay());
+    // Episode resets (docs/kr_tracker.md): a new episode_id re-anchors the trackers on the new start pose.
+    status_sub_ =
+        nh_.subscribe("sim/status", 10, &TrackerNode::OnStatus, this, ros::TransportHints().tcpNoDelay());
     switch_srv_ = nh_.advertiseService("tracker/switch", &TrackerNode::OnSwitch, this);
     goto_srv_ = nh_.advertiseService("tracker/goto", &TrackerNode::OnGoto, this);
     server_.registerGoalCallback([this](GoalHandle gh) { OnGoal(gh); });
@@ -87,11 +88,12 @@ class TrackerNode {
     server_.start();
     watchdog_ = nh_.createTimer(ros::Duration(1.0 / config_.watchdog_rate_hz),
                                 [this](const ros::TimerEvent&) { OnWatchdog(); });
-    safe_command_ = controller_.HoverCommand(0.0);
     ROS_INFO(
-        "kr_tracker: mass %.3f kg, g %.3f m/s^2 (vehicle config), kx [%.2f %.2f %.2f], kv [%.2f %.2f %.2f]",
+        "kr_tracker: mass %.3f kg, g %.3f m/s^2 (vehicle config), kx [%.2f %.2f %.2f], kv [%.2f %.2f %.2f], "
+        "odometry jump limit %.2f m",
         vehicle_.mass_kg, vehicle_.gravity_mps2, config_.gains.kx.x(), config_.gains.kx.y(),
-        config_.gains.kx.z(), config_.gains.kv.x(), config_.gains.kv.y(), config_.gains.kv.z());
+        config_.gains.kx.z(), config_.gains.kv.x(), config_.gains.kv.y(), config_.gains.kv.z(),
+        config_.max_odom_jump_m);
   }
 
  private:
@@ -105,53 +107,54 @@ class TrackerNode {
 
   void OnOdom(const nav_msgs::Odometry::ConstPtr& msg) {
     const VehicleState state = FromOdometry(*msg);
-    if (!state.AllFinite()) {
+    const bool first = !manager_.have_odom();
+    if (state.AllFinite() && !first && state.t_s <= manager_.last_state().t_s) {
+      ROS_WARN_THROTTLE(1.0, "kr_tracker: odometry stamp did not advance (%.4f after %.4f)", state.t_s,
+                        manager_.last_state().t_s);
+    }
+    const ControlStep step = manager_.OnOdometry(state);
+    if (step.odometry_skipped) {
       ROS_WARN_THROTTLE(1.0, "kr_tracker: non-finite odometry skipped; holding the safe command");
       // Still answer this odometry stamp, so a lockstepped simulator does not stall.
-      Publish(safe_command_, last_ref_, msg->header.stamp);
+      Publish(step.command, step.ref, msg->header.stamp);
       return;
     }
-    const double dt = have_odom_ ? std::clamp(state.t_s - last_state_.t_s, 0.0, 0.1) : 0.0;
-    if (have_odom_ && state.t_s <= last_state_.t_s) {
-      ROS_WARN_THROTTLE(1.0, "kr_tracker: odometry stamp did not advance (%.4f after %.4f)", state.t_s,
-                        last_state_.t_s);
-    }
-    last_state_ = state;
     last_odom_rx_ = ros::Time::now();
     if (stale_) ROS_INFO("kr_tracker: odometry is back");
     stale_ = false;
-    if (!have_odom_) {
-      have_odom_ = true;
-      last_ref_ = PositionReference::Hold(state.p_world_body, state.Yaw());
-      active_ = trackers_.at(config_.initial_tracker);
-      active_->Activate(last_ref_, state);
+    if (first) {
       ROS_INFO("kr_tracker: first odometry at (%.2f, %.2f, %.2f); tracker '%s' active",
                state.p_world_body.x(), state.p_world_body.y(), state.p_world_body.z(),
-               active_->name().c_str());
+               manager_.active_tracker().c_str());
     }
-    const PositionReference ref = active_->Update(state);
-    const ControlOutput out = controller_.Compute(ref, state, dt);
-    if (out.status != ControlStatus::kOk) {
-      ROS_WARN_THROTTLE(1.0, "kr_tracker: %s", ToString(out.status));
-    } else {
-      last_ref_ = ref;
-      safe_command_ = controller_.HoverCommand(ref.yaw_rad);
+    if (!step.reanchored.empty()) {
+      ROS_WARN("kr_tracker: %s: re-anchored at (%.2f, %.2f, %.2f), yaw %.2f; tracker '%s' active",
+               step.reanchored.c_str(), state.p_world_body.x(), state.p_world_body.y(),
+               state.p_world_body.z(), state.Yaw(), manager_.active_tracker().c_str());
     }
-    Publish(out.command, ref, msg->header.stamp);
+    if (step.status != ControlStatus::kOk) ROS_WARN_THROTTLE(1.0, "kr_tracker: %s", ToString(step.status));
+    Publish(step.command, step.ref, msg->header.stamp);
     ProcessEvents();
-    if (const auto id = bspline_.running_goal(); id && state.t_s >= next_feedback_s_) {
+    if (const auto id = manager_.bspline().running_goal(); id && state.t_s >= next_feedback_s_) {
       next_feedback_s_ = state.t_s + 1.0 / config_.feedback_rate_hz;
       const auto it = goals_.find(*id);
       if (it != goals_.end()) {
         quad_msgs::TrackBsplineFeedback fb;
-        fb.remaining_time_s = bspline_.RemainingTime(state.t_s);
+        fb.remaining_time_s = manager_.bspline().RemainingTime(state.t_s);
         it->second.publishFeedback(fb);
       }
     }
   }
 
+  void OnStatus(const quad_msgs::EpisodeStatus::ConstPtr& msg) {
+    const ros::Time start = msg->sim_time.isZero() ? msg->header.stamp : msg->sim_time;
+    const std::string what = manager_.OnEpisodeStatus(msg->episode_id, start.toSec());
+    if (!what.empty()) ROS_INFO("kr_tracker: %s", what.c_str());
+    ProcessEvents();
+  }
+
   void OnWatchdog() {
-    if (!have_odom_) return;
+    if (!manager_.have_odom()) return;
     const ros::Time now = ros::Time::now();
     if ((now - last_odom_rx_).toSec() <= config_.odom_timeout_s) return;
     if (!stale_) {
@@ -159,7 +162,7 @@ class TrackerNode {
                (now - last_odom_rx_).toSec(), config_.odom_timeout_s);
     }
     stale_ = true;
-    Publish(safe_command_, last_ref_, now);
+    Publish(manager_.safe_command(), manager_.last_ref(), now);
   }
 
   void Publish(const So3Command& c, const PositionReference& ref, const ros::Time& stamp) {
@@ -176,7 +179,7 @@ class TrackerNode {
       m.kR[i] = c.kR[i];
       m.kOm[i] = c.kOm[i];
     }
-    m.aux.current_yaw = last_state_.Yaw();
+    m.aux.current_yaw = manager_.last_state().Yaw();
     m.aux.kf_correction = 0.0;
     m.aux.enable_motors = c.enable_motors;
     m.aux.use_external_yaw = false;
@@ -200,49 +203,46 @@ class TrackerNode {
     pos_pub_.publish(p);
   }
 
-  std::string SwitchTo(Tracker* next) {
-    if (!have_odom_) return "no odometry received yet";
-    if (next == active_) return "";
-    active_->Deactivate();
-    next->Activate(last_ref_, last_state_);
-    ROS_INFO("kr_tracker: switched from '%s' to '%s'", active_->name().c_str(), next->name().c_str());
-    active_ = next;
-    ProcessEvents();
-    return "";
-  }
-
   bool OnSwitch(quad_msgs::SwitchTracker::Request& req, quad_msgs::SwitchTracker::Response& res) {
-    const auto it = trackers_.find(req.tracker);
-    if (it == trackers_.end()) {
-      res.success = false;
-      res.message = "unknown tracker '" + req.tracker + "' (hover, line, bspline)";
+    const std::string before = manager_.active_tracker();
+    bool deferred = false;
+    const std::string why = manager_.Switch(req.tracker, &deferred);
+    res.success = why.empty();
+    if (!res.success) {
+      res.message = why;
+      ROS_WARN("kr_tracker: switch refused: %s", why.c_str());
+    } else if (deferred) {
+      res.message = "switch to " + req.tracker + " queued until the new episode's first odometry";
+      ROS_INFO("kr_tracker: %s", res.message.c_str());
     } else {
-      const std::string why = SwitchTo(it->second);
-      res.success = why.empty();
-      res.message = why.empty() ? "active tracker: " + req.tracker : why;
+      res.message = "active tracker: " + req.tracker;
+      if (before != req.tracker)
+        ROS_INFO("kr_tracker: switched from '%s' to '%s'", before.c_str(), req.tracker.c_str());
     }
-    if (!res.success) ROS_WARN("kr_tracker: switch refused: %s", res.message.c_str());
+    ProcessEvents();
     return true;
   }
 
   bool OnGoto(quad_msgs::Goto::Request& req, quad_msgs::Goto::Response& res) {
-    std::string why = have_odom_ ? "" : "no odometry received yet";
-    if (why.empty()) {
-      why = line_.SetGoal(Eigen::Vector3d(req.position.x, req.position.y, req.position.z), req.yaw,
-                          req.max_vel_mps, req.max_acc_mps2);
-    }
-    if (why.empty()) why = SwitchTo(&line_);
+    bool deferred = false;
+    const std::string why = manager_.Goto(Eigen::Vector3d(req.position.x, req.position.y, req.position.z),
+                                          req.yaw, req.max_vel_mps, req.max_acc_mps2, &deferred);
     res.success = why.empty();
-    res.message = why.empty() ? "flying to the goal with the line tracker" : why;
-    if (!res.success) ROS_WARN("kr_tracker: goto refused: %s", why.c_str());
+    if (!res.success) {
+      res.message = why;
+      ROS_WARN("kr_tracker: goto refused: %s", why.c_str());
+    } else {
+      res.message = deferred ? "goto queued until the new episode's first odometry, then flown from there"
+                             : "flying to the goal with the line tracker";
+    }
+    ProcessEvents();
     return true;
   }
 
   void OnGoal(GoalHandle gh) {
     const auto goal = gh.getGoal();
-    std::string why = have_odom_ ? "" : "no odometry received yet";
     const uint64_t id = next_goal_id_++;
-    if (why.empty()) why = bspline_.AddGoal(id, ToSpec(goal->bspline), ros::Time::now().toSec(), last_state_);
+    const std::string why = manager_.AddGoal(id, ToSpec(goal->bspline), ros::Time::now().toSec());
     if (!why.empty()) {
       quad_msgs::TrackBsplineResult r;
       r.success = false;
@@ -254,14 +254,13 @@ class TrackerNode {
     }
     gh.setAccepted();
     goals_.emplace(id, gh);
-    if (config_.bspline_auto_activate && active_ != &bspline_) SwitchTo(&bspline_);
     ProcessEvents();
   }
 
   void OnCancel(GoalHandle gh) {
     for (const auto& [id, handle] : goals_) {
       if (handle == gh) {
-        bspline_.Cancel(id);
+        manager_.Cancel(id);
         break;
       }
     }
@@ -270,7 +269,7 @@ class TrackerNode {
 
   // Maps the B-spline tracker's goal events onto the action's goal handles.
   void ProcessEvents() {
-    for (const GoalEvent& e : bspline_.TakeEvents()) {
+    for (const GoalEvent& e : manager_.TakeEvents()) {
       const auto it = goals_.find(e.goal_id);
       if (it == goals_.end()) continue;
       if (e.kind == GoalEventKind::kStarted) {
@@ -307,25 +306,16 @@ class TrackerNode {
   ros::NodeHandle nh_;
   TrackerConfig config_;
   quad_sim::VehicleParams vehicle_;
-  So3Controller controller_;
-  HoverTracker hover_;
-  LineTracker line_;
-  BsplineTracker bspline_;
-  std::map<std::string, Tracker*> trackers_;
-  Tracker* active_ = nullptr;
+  TrackerManager manager_;
   TrackServer server_;
   std::map<uint64_t, GoalHandle> goals_;
   uint64_t next_goal_id_ = 1;
   ros::Publisher so3_pub_, pos_pub_;
-  ros::Subscriber odom_sub_;
+  ros::Subscriber odom_sub_, status_sub_;
   ros::ServiceServer switch_srv_, goto_srv_;
   ros::Timer watchdog_;
-  bool have_odom_ = false;
   bool stale_ = false;
-  VehicleState last_state_;
   ros::Time last_odom_rx_;
-  PositionReference last_ref_;
-  So3Command safe_command_;
   double next_feedback_s_ = 0.0;
 };
 
