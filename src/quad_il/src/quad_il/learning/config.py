@@ -114,6 +114,16 @@ class LogConfig(_Strict):
     plots: bool = True
 
 
+class DistConfig(_Strict):
+    """Distributed data-parallel training (torchrun, docs/scaling.md); ignored by a single process."""
+
+    backend: Literal["auto", "gloo", "nccl"] = "auto"  # auto: nccl when CUDA is available, else gloo
+    # BatchNorm statistics over the global batch (exactly one process's training, but CrossProcessBatchNorm2d
+    # roughly doubles a CPU step); false: per-process statistics, as plain DDP
+    sync_batchnorm: bool = False
+    timeout_s: float = Field(1800.0, gt=0.0)  # collective operations' timeout
+
+
 class TrainConfig(_Strict):
     run: RunConfig = RunConfig()
     data: DataConfig = DataConfig()
@@ -121,6 +131,7 @@ class TrainConfig(_Strict):
     optim: OptimConfig = OptimConfig()
     scheduler: SchedulerConfig = SchedulerConfig()
     log: LogConfig = LogConfig()
+    dist: DistConfig = DistConfig()
 
     def to_dict(self) -> dict[str, Any]:
         return self.model_dump(mode="json")
@@ -130,6 +141,7 @@ class TrainConfig(_Strict):
 RESUME_MUTABLE_KEYS = frozenset(
     {"optim.epochs", "data.paths", "data.num_workers", "data.hash_files", "run.out_dir"}
     | {f"log.{k}" for k in LogConfig.model_fields}
+    | {f"dist.{k}" for k in DistConfig.model_fields}
 )
 
 

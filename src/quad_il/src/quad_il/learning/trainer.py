@@ -15,6 +15,14 @@ Run directory `<run.out_dir>/<run.name>/`:
 Determinism: the global torch RNG is seeded with run.seed before the network is built, the thread count is
 fixed, `torch.use_deterministic_algorithms` is on, and the batch order of epoch e is a function of (seed, e).
 Two runs with the same configuration and data give identical losses; a resumed run continues the same curve.
+
+Distributed data parallel (`dist` a DistContext from distributed.init_distributed, world size > 1; see
+distributed.py and docs/scaling.md): every rank loads the data and builds the same seeded network; each
+takes its share of every global batch (optim.batch_size) in the single-process order; DDP averages the
+gradients; the loss sums are all-reduced, so the logged training and validation losses are the global ones;
+only rank 0 reads and writes the run directory (config, CSV, TensorBoard, checkpoints, plots, export) and
+broadcasts what the others need (resolved configuration, resumed checkpoint). With `DistContext()` (the
+default) none of this runs: the single-process code path is unchanged.
 """
 
 from __future__ import annotations
@@ -22,6 +30,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
 import random
 import sys
 import time
@@ -30,8 +39,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
-from torch import Tensor
+from torch import Tensor, nn
 from tqdm import tqdm
 
 from quad_il.learning import metrics
@@ -52,6 +62,15 @@ from quad_il.learning.dataset import (
     Split,
     load_dataset,
     split_by_episode,
+)
+from quad_il.learning.distributed import (
+    SINGLE_PROCESS,
+    DistContext,
+    GlobalBatchDistributedSampler,
+    check_batch_division,
+    convert_batchnorm,
+    rank_seed,
+    revert_batchnorm,
 )
 from quad_il.learning.export import export_torchscript, policy_metadata
 from quad_il.learning.losses import batch_loss
@@ -148,8 +167,45 @@ def _record_from_row(r: dict[str, str]) -> EpochRecord:
     )
 
 
+class DistributedBatchLoader(BatchLoader):
+    """This rank's share of every global batch: `GlobalBatchDistributedSampler` (set_epoch per epoch) gives
+    the rank's indices; consecutive runs of the per-process batch size are its batches."""
+
+    def __init__(
+        self,
+        data: PreparedData,
+        targets: Tensor,
+        sampler: GlobalBatchDistributedSampler,
+        per_process_batch: int,
+        num_workers: int,
+    ) -> None:
+        super().__init__(data, targets, sampler.indices, per_process_batch, False, 0, False, num_workers)
+        self.sampler = sampler
+
+    def __len__(self) -> int:
+        return self.sampler.steps
+
+    def order(self, epoch: int) -> np.ndarray:
+        self.sampler.set_epoch(epoch)
+        return self.sampler.epoch_indices()
+
+
+class _PreparedForward(nn.Module):
+    """DDP hooks `forward` only: this makes the training forward (`forward_prepared`) the wrapped one."""
+
+    def __init__(self, policy: Policy) -> None:
+        super().__init__()
+        self.policy = policy
+
+    def forward(self, x: Tensor, p: Tensor, v: Tensor, q: Tensor, goal: Tensor) -> Tensor:
+        return self.policy.forward_prepared(x, p, v, q, goal)
+
+
 class Trainer:
-    """One training run. `Trainer(cfg).fit()`; `Trainer(cfg, resume=True)` continues `run_dir_of(cfg)`."""
+    """One training run. `Trainer(cfg).fit()`; `Trainer(cfg, resume=True)` continues `run_dir_of(cfg)`.
+
+    `dist`: this process's DistContext in a distributed run (torchrun; distributed.init_distributed).
+    """
 
     def __init__(
         self,
@@ -158,18 +214,30 @@ class Trainer:
         data: PreparedData | None = None,
         policy_factory: PolicyFactory = build_policy,
         argv: list[str] | None = None,
+        dist: DistContext = SINGLE_PROCESS,
     ) -> None:
+        self.dist = dist
         self.run_dir = run_dir_of(cfg)
         self.resume = resume
         self.argv = argv if argv is not None else sys.argv
+        per_process_batch = cfg.optim.batch_size
+        if dist.enabled:
+            per_process_batch = check_batch_division(cfg.optim.batch_size, dist.world_size)
         if resume:
-            cfg = self._check_resumable(cfg)
-        elif (self.run_dir / "checkpoints" / "last.pt").exists() or (self.run_dir / "metrics.csv").exists():
-            raise RunDirError(
-                f"run directory {self.run_dir} already holds a run: resume it or choose run.name"
-            )
+            cfg = dist.run_on_main(lambda: self._check_resumable(cfg))
+        else:
+            dist.run_on_main(self._check_new_run_dir)
         self.cfg = cfg
         configure_determinism(cfg.run.seed, cfg.run.num_threads, cfg.run.deterministic)
+        if dist.enabled and dist.local_rank == 0:
+            cpus = os.cpu_count() or 1
+            if cfg.run.num_threads * dist.local_world_size > cpus:
+                print(
+                    f"[train] warning: run.num_threads={cfg.run.num_threads} x {dist.local_world_size} "
+                    f"processes on this node > {cpus} CPUs: "
+                    f"set run.num_threads={max(1, cpus // dist.local_world_size)}",
+                    file=sys.stderr,
+                )
         # The policy needs the dataset's K and horizon, the data only the parameter-free depth preprocessor
         # (built from the same config, identical to the policy's own): data first, then the seeded network.
         pre = DepthPreprocessor(cfg.model.input_height, cfg.model.input_width, cfg.model.max_depth_m)
@@ -192,26 +260,54 @@ class Trainer:
                 self.data.ctrl_world, self.data.p_world_body, self.data.q_world_body
             ).contiguous()
         o = cfg.optim
-        self.train_loader = BatchLoader(
-            self.data,
-            self.targets,
-            self.split.train_idx,
-            o.batch_size,
-            True,
-            cfg.run.seed,
-            True,
-            cfg.data.num_workers,
-        )
-        self.val_loader = BatchLoader(
-            self.data,
-            self.targets,
-            self.split.val_idx,
-            4 * o.batch_size,
-            False,
-            0,
-            False,
-            cfg.data.num_workers,
-        )
+        self.val_loader: BatchLoader | None
+        if not dist.enabled:
+            self.train_loader = BatchLoader(
+                self.data,
+                self.targets,
+                self.split.train_idx,
+                o.batch_size,
+                True,
+                cfg.run.seed,
+                True,
+                cfg.data.num_workers,
+            )
+            self.val_loader = BatchLoader(
+                self.data,
+                self.targets,
+                self.split.val_idx,
+                4 * o.batch_size,
+                False,
+                0,
+                False,
+                cfg.data.num_workers,
+            )
+        else:
+            sampler = GlobalBatchDistributedSampler(
+                self.split.train_idx, dist.world_size, dist.rank, cfg.run.seed, o.batch_size
+            )
+            self.train_loader = DistributedBatchLoader(
+                self.data, self.targets, sampler, per_process_batch, cfg.data.num_workers
+            )
+            # Validation: every rank evaluates a strided share; the sums are all-reduced (_validate).
+            val_share = self.split.val_idx[dist.rank :: dist.world_size]
+            self.val_loader = (
+                BatchLoader(
+                    self.data,
+                    self.targets,
+                    val_share,
+                    4 * per_process_batch,
+                    False,
+                    0,
+                    False,
+                    cfg.data.num_workers,
+                )
+                if len(val_share)
+                else None
+            )
+        self.device = dist.device
+        if self.device.type != "cpu":
+            self.policy = self.policy.to(self.device)
         params = self.policy.parameters()
         if o.optimizer == "adam":
             self.optimizer: torch.optim.Optimizer = torch.optim.Adam(
@@ -224,6 +320,16 @@ class Trainer:
                 params, lr=o.lr, momentum=o.momentum, weight_decay=o.weight_decay
             )
         self.scheduler = build_scheduler(cfg.scheduler, self.optimizer)
+        self._ddp: nn.Module | None = None
+        if dist.enabled:
+            from torch.nn.parallel import DistributedDataParallel
+
+            if cfg.dist.sync_batchnorm:
+                convert_batchnorm(self.policy, dist.bn_group)
+            self._ddp = DistributedDataParallel(
+                _PreparedForward(self.policy),
+                device_ids=[self.device] if self.device.type == "cuda" else None,
+            )  # buffers (BatchNorm running statistics) are synchronised from rank 0 at every forward
         self.start_epoch = 0
         self.global_step = 0
         self.best_val_loss = math.inf
@@ -232,6 +338,12 @@ class Trainer:
         self._writer: Any = None  # TensorBoard SummaryWriter while fit() runs
 
     # ------------------------------------------------------------------------------------------------ run dir
+    def _check_new_run_dir(self) -> None:
+        if (self.run_dir / "checkpoints" / "last.pt").exists() or (self.run_dir / "metrics.csv").exists():
+            raise RunDirError(
+                f"run directory {self.run_dir} already holds a run: resume it or choose run.name"
+            )
+
     def _check_resumable(self, cfg: TrainConfig) -> TrainConfig:
         ckpt = self.run_dir / "checkpoints" / "last.pt"
         saved_cfg_path = self.run_dir / "config.yaml"
@@ -253,7 +365,15 @@ class Trainer:
         dump_config(self.cfg, self.run_dir / "config.yaml")
         info_path = self.run_dir / "run_info.json"
         now = time.strftime("%Y-%m-%dT%H:%M:%S%z")
-        entry = {"started": now, "argv": list(self.argv), "software": software_info()}
+        entry: dict[str, Any] = {"started": now, "argv": list(self.argv), "software": software_info()}
+        entry["world_size"] = self.dist.world_size
+        if self.dist.enabled:
+            entry["distributed"] = {
+                **self.dist.describe(),
+                "global_batch": self.cfg.optim.batch_size,
+                "per_process_batch": self.cfg.optim.batch_size // self.dist.world_size,
+                "sync_batchnorm": self.cfg.dist.sync_batchnorm,
+            }
         if self.resume and info_path.is_file():
             info = json.loads(info_path.read_text())
             info.setdefault("resumptions", []).append({**entry, "from_epoch": self.start_epoch})
@@ -277,25 +397,41 @@ class Trainer:
             "config": self.cfg.to_dict(),
             "num_ctrl_pts": self.data.num_ctrl_pts,
             "horizon_s": self.data.horizon_s,
+            "world_size": self.dist.world_size,
         }
 
-    def _restore(self) -> None:
+    def _load_last(self) -> tuple[dict[str, Any], list[dict[str, str]]]:
         ckpt = torch.load(self.run_dir / "checkpoints" / "last.pt", map_location="cpu", weights_only=False)
         if ckpt.get("format") != CHECKPOINT_FORMAT:
             raise RunDirError(
                 f"{self.run_dir}: checkpoint format {ckpt.get('format')!r} is not {CHECKPOINT_FORMAT}"
             )
+        # Rows written after the checkpoint (a crash between the two writes) are redone identically.
+        rows = [r for r in _read_csv(self.run_dir / "metrics.csv") if int(r["epoch"]) <= int(ckpt["epoch"])]
+        return ckpt, rows
+
+    def _restore(self) -> None:
+        # Rank 0 reads the run directory; every rank gets the same checkpoint (no shared file system needed).
+        ckpt, rows = self.dist.run_on_main(self._load_last)
         self.policy.load_state_dict(ckpt["model"])
         self.optimizer.load_state_dict(ckpt["optimizer"])
         if self.scheduler is not None:
             self.scheduler.load_state_dict(ckpt["scheduler"])
-        torch.set_rng_state(ckpt["torch_rng_state"])
+        if not self.dist.enabled:
+            torch.set_rng_state(ckpt["torch_rng_state"])
+        # (Under DDP each rank's RNG is reseeded per epoch from (seed, epoch, rank): nothing to restore.)
+        saved_world = int(ckpt.get("world_size", 1))
+        if saved_world != self.dist.world_size and self.dist.is_main:
+            print(
+                f"[train] note: {self.run_dir} was trained with {saved_world} process(es) and resumes with "
+                f"{self.dist.world_size}: the curve continues, but not bit-identically to an "
+                "uninterrupted run",
+                file=sys.stderr,
+            )
         self.start_epoch = int(ckpt["epoch"])
         self.global_step = int(ckpt["global_step"])
         self.best_val_loss = float(ckpt["best_val_loss"])
         self.best_epoch = int(ckpt["best_epoch"])
-        # Rows written after the checkpoint (a crash between the two writes) are redone identically.
-        rows = [r for r in _read_csv(self.run_dir / "metrics.csv") if int(r["epoch"]) <= self.start_epoch]
         self.history = [_record_from_row(r) for r in rows]
 
     # ----------------------------------------------------------------------------------------------- training
@@ -309,29 +445,74 @@ class Trainer:
             f"{' ...' if len(culprits) > 10 else ''}"
         )
 
+    def _dist_nonfinite(
+        self, epoch: int, batch: Batch | None, per_sample: Tensor | None, what: str
+    ) -> NonFiniteLossError:
+        """The error every rank raises together: each rank's culprits, gathered."""
+        local = None
+        if batch is not None and per_sample is not None:
+            local = str(self._nonfinite(epoch, batch, per_sample, what))
+        messages = self.dist.all_gather_object(local)
+        found = [f"rank {r}: {m}" for r, m in enumerate(messages) if m is not None]
+        return NonFiniteLossError(
+            f"non-finite {what} at epoch {epoch}, step {self.global_step} (distributed run of "
+            f"{self.dist.world_size} processes): " + " | ".join(found)
+        )
+
+    def _to_device(self, batch: Batch) -> Batch:
+        if self.device.type == "cpu":
+            return batch
+        d = self.device
+        return Batch(
+            batch.indices,
+            batch.depth_x.to(d),
+            batch.p_world_body.to(d),
+            batch.v_world.to(d),
+            batch.q_world_body.to(d),
+            batch.goal_world.to(d),
+            batch.target.to(d),
+        )
+
     def _train_epoch(self, epoch: int) -> float:
         self.policy.train()
         o = self.cfg.optim
         total, count = 0.0, 0
+        if self.dist.enabled:
+            # Dropout masks: per rank and epoch (a resumed run draws the same ones).
+            torch.manual_seed(rank_seed(self.cfg.run.seed, epoch, self.dist.rank))
         bar = tqdm(
             self.train_loader.epoch(epoch),
             total=len(self.train_loader),
             desc=f"epoch {epoch}/{o.epochs}",
-            disable=not self.cfg.log.progress,
+            disable=not (self.cfg.log.progress and self.dist.is_main),
             leave=False,
             file=sys.stderr,
             dynamic_ncols=True,
         )
+        forward = self._ddp if self._ddp is not None else self.policy.forward_prepared
         for batch in bar:
+            batch = self._to_device(batch)
             x = batch.depth_x
             if o.channels_last:
                 x = x.contiguous(memory_format=torch.channels_last)
-            y = self.policy.forward_prepared(
-                x, batch.p_world_body, batch.v_world, batch.q_world_body, batch.goal_world
-            )
+            y = forward(x, batch.p_world_body, batch.v_world, batch.q_world_body, batch.goal_world)
             loss, per = batch_loss(o.loss, y, batch.target)
-            if not bool(torch.isfinite(loss)):
-                raise self._nonfinite(epoch, batch, per.detach(), "training loss")
+            if self.dist.enabled:
+                # The global batch's loss and a non-finite count, summed over ranks (one small all-reduce),
+                # checked before backward so that every rank stops at the same step.
+                detached = per.detach()
+                s, n, bad = self.dist.all_reduce_sum(
+                    [detached.sum(), len(per), (~torch.isfinite(detached)).sum()]
+                )
+                if bad > 0:
+                    local_bad = not bool(torch.isfinite(detached).all())
+                    raise self._dist_nonfinite(
+                        epoch, batch if local_bad else None, detached.cpu(), "training loss"
+                    )
+                step_loss = s / n
+            else:
+                if not bool(torch.isfinite(loss)):
+                    raise self._nonfinite(epoch, batch, per.detach(), "training loss")
             self.optimizer.zero_grad(set_to_none=True)
             loss.backward()
             if o.grad_clip_norm is not None:
@@ -342,19 +523,27 @@ class Trainer:
             if self.scheduler is not None:
                 self.scheduler.step()
             self.global_step += 1
+            if not self.dist.enabled:
+                step_loss = loss.item()
+                total += float(per.detach().sum())
+                count += len(per)
+            else:
+                total += s
+                count += int(n)
             if self._writer is not None:
-                self._writer.add_scalar("step/train_loss", loss.item(), self.global_step)
+                self._writer.add_scalar("step/train_loss", step_loss, self.global_step)
                 self._writer.add_scalar("step/lr", self.optimizer.param_groups[0]["lr"], self.global_step)
-            total += float(per.detach().sum())
-            count += len(per)
-            bar.set_postfix(loss=f"{loss.item():.4g}", lr=f"{self.optimizer.param_groups[0]['lr']:.3g}")
+            bar.set_postfix(loss=f"{step_loss:.4g}", lr=f"{self.optimizer.param_groups[0]['lr']:.3g}")
         return total / max(count, 1)
 
     @torch.no_grad()
     def _validate(self, epoch: int) -> tuple[float, float, float]:
         self.policy.eval()
         loss_sum, mse_sum, cos_sum, n = 0.0, 0.0, 0.0, 0
-        for batch in self.val_loader.epoch(0):
+        bad: tuple[Batch, Tensor] | None = None
+        batches = self.val_loader.epoch(0) if self.val_loader is not None else iter(())
+        for batch in batches:
+            batch = self._to_device(batch)
             x = batch.depth_x
             if self.cfg.optim.channels_last:
                 x = x.contiguous(memory_format=torch.channels_last)
@@ -363,21 +552,35 @@ class Trainer:
             )
             _, per = batch_loss(self.cfg.optim.loss, y, batch.target)
             if not bool(torch.isfinite(per).all()):
-                raise self._nonfinite(epoch, batch, per, "validation loss")
-            ctrl = self.policy.decode(y, batch.p_world_body, batch.q_world_body).numpy()
+                if not self.dist.enabled:
+                    raise self._nonfinite(epoch, batch, per, "validation loss")
+                bad = (batch, per.cpu())  # reported by every rank together, after the all-reduce
+                break
+            ctrl = self.policy.decode(y, batch.p_world_body, batch.q_world_body).cpu().numpy()
             expert = self.data.ctrl_world.index_select(0, torch.from_numpy(batch.indices)).numpy()
             loss_sum += float(per.sum())
             mse_sum += float(metrics.mse(ctrl, expert).sum())
             cos_sum += float(metrics.cosine_similarity(ctrl, expert).sum())
             n += len(per)
+        if self.dist.enabled:
+            loss_sum, mse_sum, cos_sum, total, num_bad = self.dist.all_reduce_sum(
+                [loss_sum, mse_sum, cos_sum, n, 0 if bad is None else 1]
+            )
+            if num_bad > 0:
+                raise self._dist_nonfinite(
+                    epoch, *(bad if bad is not None else (None, None)), "validation loss"
+                )
+            n = int(total)
         return loss_sum / n, mse_sum / n, cos_sum / n
 
     def fit(self) -> TrainResult:
         if self.resume:
             self._restore()
-        self._write_run_files()
+        main = self.dist.is_main
+        if main:
+            self._write_run_files()
         writer = None
-        if self.cfg.log.tensorboard:
+        if self.cfg.log.tensorboard and main:
             from torch.utils.tensorboard import SummaryWriter
 
             # Every scalar is logged against the optimiser step (epoch scalars at the epoch's last step), so a
@@ -385,9 +588,10 @@ class Trainer:
             writer = SummaryWriter(str(self.run_dir / "tensorboard"), purge_step=self.global_step + 1)
             self._writer = writer
         csv_path = self.run_dir / "metrics.csv"
-        _write_csv(csv_path, [r.row() for r in self.history])
+        if main:
+            _write_csv(csv_path, [r.row() for r in self.history])
         epochs = self.cfg.optim.epochs
-        log = print if self.cfg.log.progress else (lambda *a, **k: None)
+        log = print if self.cfg.log.progress and main else (lambda *a, **k: None)
         log(
             f"[train] {self.run_dir}: {len(self.split.train_idx)} training / "
             f"{len(self.split.val_idx)} validation "
@@ -395,6 +599,15 @@ class Trainer:
             f"epochs {self.start_epoch + 1}..{epochs}",
             file=sys.stderr,
         )
+        if self.dist.enabled:
+            log(
+                f"[train] distributed: {self.dist.world_size} processes ({self.dist.backend}, "
+                f"{self.dist.device}), global batch {self.cfg.optim.batch_size} = "
+                f"{self.dist.world_size} x {self.cfg.optim.batch_size // self.dist.world_size}, "
+                f"{len(self.train_loader)} steps per epoch, "
+                f"BatchNorm statistics {'global' if self.cfg.dist.sync_batchnorm else 'per process'}",
+                file=sys.stderr,
+            )
         try:
             for epoch in range(self.start_epoch + 1, epochs + 1):
                 t0 = time.perf_counter()
@@ -412,15 +625,17 @@ class Trainer:
                     time.perf_counter() - t0,
                 )
                 self.history.append(rec)
+                improved = val_loss < self.best_val_loss
+                if improved:
+                    self.best_val_loss, self.best_epoch = val_loss, epoch
+                if not main:
+                    continue
                 _write_csv(csv_path, [r.row() for r in self.history])
                 if writer is not None:
                     for k in ("train_loss", "val_loss", "val_mse_world_m2", "val_cosine_world"):
                         writer.add_scalar(f"epoch/{k}", getattr(rec, k), self.global_step)
                     writer.add_scalar("epoch/epoch", epoch, self.global_step)
                     writer.flush()
-                improved = val_loss < self.best_val_loss
-                if improved:
-                    self.best_val_loss, self.best_epoch = val_loss, epoch
                 ckpt = self._checkpoint(epoch)
                 _atomic_torch_save(ckpt, self.run_dir / "checkpoints" / "last.pt")
                 if improved:
@@ -435,10 +650,19 @@ class Trainer:
             if writer is not None:
                 writer.close()
             self._writer = None
-        return self._finish()
+        if not main:
+            result = TrainResult(self.run_dir, list(self.history), self.best_epoch, self.best_val_loss, None)
+        else:
+            result = self._finish()
+        self.dist.barrier()  # the others wait for rank 0's export before the process group closes
+        return result
 
     def _finish(self) -> TrainResult:
         policy_path = None
+        if self.dist.enabled:
+            revert_batchnorm(self.policy)  # plain BatchNorm2d for TorchScript
+        if self.device.type != "cpu":
+            self.policy = self.policy.cpu()
         summary: dict[str, Any] = {
             "best_epoch": self.best_epoch,
             "best_val_loss": self.best_val_loss,
