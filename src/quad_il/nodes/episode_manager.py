@@ -1,93 +1,298 @@
 #!/usr/bin/env python3
-"""Episode manager of a demonstration-collection run (`roslaunch quad_il collect.launch`).
+"""Episode manager of a demonstration-collection run (`roslaunch quad_il collect.launch`, docs/collect.md).
 
-For each episode: reset the simulator into the episode's seeded world with a start on the ground, take off
-with the tracker's line tracker, send the goal to the expert, and wait (in sim time) for goal reached,
-collision or timeout. Logs every episode's outcome and why to <output_dir>/episodes.csv, prints progress, and
-stops after N episodes or M samples by shutting the launch down (`required="true"`), which lets the expert
-finalise its dataset.
-The episode logic (seeds, start/goal sampling, stop conditions) is quad_il.collection.episodes (ROS-free).
+For each episode: restart the tracker (kr_tracker keeps its previous reference across a simulator reset),
+reset the simulator into the episode's seeded world with a start on the ground, take off with the tracker's
+line tracker, send the goal to the expert, and end the episode on goal reached, collision or timeout (sim
+time). Logs every episode's outcome and why to <output_dir>/episodes.csv, prints progress, and stops after N
+episodes or M samples by shutting the launch down (`required="true"`), which lets the expert finalise its
+dataset.
+
+Every decision is taken at a depth frame (its camera_info, same stamp) from data stamped at or before it. In
+lockstep the manager is one of the simulator's depth consumers: it acknowledges a frame only once its decision
+for that frame has taken effect (the goto answered, the planner has taken the goal), and it holds the frame at
+which an episode ends while it restarts the tracker and resets. The same seeds therefore give the same flights
+and the same records, whatever the machine's load. The episode logic (seeds, start/goal sampling, stop
+conditions) is quad_il.collection.episodes (ROS-free).
 """
 
 from __future__ import annotations
 
+import bisect
 import math
+import queue
 import sys
 import threading
 import time
+import xmlrpc.client
 
-import numpy as np
+import rosnode
 import rospy
+import yaml
 from geometry_msgs.msg import Point, Pose, PoseStamped, Quaternion
 from nav_msgs.msg import Odometry
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import CameraInfo
+from std_msgs.msg import String
 
 from quad_il.collection.episodes import (
     EpisodeLog,
     EpisodeOutcome,
     StopCondition,
-    load_collect_config,
+    manager_config,
     plan_episode,
 )
-from quad_msgs.msg import Bspline, EpisodeStatus
+from quad_msgs.msg import EpisodeStatus, FrameAck, PlanTiming
 from quad_msgs.srv import Goto, ResetEpisode
 
 GROUND_Z_M = 0.125  # the vehicle's collision box half height: the start rests on the ground
+TAKEOFF_TOLERANCE_M = 0.15
+TAKEOFF_MAX_SPEED_MPS = 0.3
+WALL_WAIT_S = 30.0  # wall-time limit of any wait on another node
+STARTUP_ACK_S = 0.2  # sim seconds of the simulator's initial episode acknowledged blindly at start-up
+
+
+class Interrupted(Exception):
+    pass
 
 
 class EpisodeManager:
     def __init__(self) -> None:
-        overrides = {
-            "output_dir": rospy.get_param("~output_dir", None) or None,
-            "episodes": rospy.get_param("~episodes", 0) or None,
-            "max_samples": rospy.get_param("~max_samples", -1)
-            if rospy.get_param("~max_samples", -1) >= 0
-            else None,
+        params = {
+            k: rospy.get_param(f"~{k}")
+            for k in ("output_dir", "seeds", "episodes", "max_samples", "episode_timeout_s")
+            if rospy.has_param(f"~{k}")
         }
-        seeds = str(rospy.get_param("~seeds", "")).strip()
-        if seeds:
-            overrides["seeds"] = [int(s) for s in seeds.replace(",", " ").split()]
-        self.cfg = load_collect_config(rospy.get_param("~config"), overrides)
-        self.takeoff_timeout_s = float(rospy.get_param("~takeoff_timeout_s", 15.0))
+        if not rospy.has_param("~config"):
+            raise ValueError("the private parameter ~config (path of collect.yaml) is required")
+        self.cfg = manager_config(rospy.get_param("~config"), params)
+        self.lockstep = bool(rospy.get_param("~lockstep", False))
+        self.consumer = str(rospy.get_param("~frame_ack_consumer", "episode_manager"))
+        self.planner_consumer = str(rospy.get_param("~planner_consumer", "fast_planner"))
+        self.tracker_node = str(rospy.get_param("~tracker_node", "/kr_tracker"))
+        self.odom_period_s = float(rospy.get_param("~odom_period_s", 0.005))
         self._lock = threading.Lock()
+        self._cv = threading.Condition(self._lock)
         self._status: EpisodeStatus | None = None
-        self._odom: Odometry | None = None
-        self._samples_episode = 0
+        self._odom_t: list[float] = []
+        self._odom: list[tuple[tuple[float, float, float], float]] = []
+        self._planner_ack = 0.0
+        self._planner_status: list[str] = []
+        self._successes: list[float] = []  # stamps of successful plans (= records)
+        self._frames: queue.Queue[tuple[float, rospy.Time]] = queue.Queue()
+        self._held: rospy.Time | None = None  # a frame not acknowledged yet (lockstep)
+        self._seen_frame = False
+        self._startup_ack_s = 0.0
+        self._last_ack: rospy.Time | None = None
+        self._sim_first_s: float | None = None
+        self._last_frame_s = 0.0
         rospy.Subscriber("/sim/status", EpisodeStatus, self._on_status, queue_size=10)
-        rospy.Subscriber("/odom", Odometry, self._on_odom, queue_size=1)
-        rospy.Subscriber("/planner/bspline", Bspline, self._on_bspline, queue_size=100)
+        rospy.Subscriber("/odom", Odometry, self._on_odom, queue_size=400, tcp_nodelay=True)
+        rospy.Subscriber("/planner/timing", PlanTiming, self._on_timing, queue_size=100)
+        rospy.Subscriber("/planner/status", String, self._on_planner_status, queue_size=100)
+        rospy.Subscriber("/sim/frame_ack", FrameAck, self._on_ack, queue_size=100, tcp_nodelay=True)
         self.goal_pub = rospy.Publisher("/planner/goal", PoseStamped, queue_size=1, latch=True)
+        self.ack_pub = rospy.Publisher("/sim/frame_ack", FrameAck, queue_size=10, tcp_nodelay=True)
+        self.clock_pub = rospy.Publisher("/clock", Clock, queue_size=1) if self.lockstep else None
+        rospy.Subscriber(
+            "/camera/depth/camera_info", CameraInfo, self._on_frame, queue_size=100, tcp_nodelay=True
+        )
         rospy.loginfo("episode_manager: waiting for /sim/reset and /tracker/goto")
         rospy.wait_for_service("/sim/reset")
         rospy.wait_for_service("/tracker/goto")
         self.reset_srv = rospy.ServiceProxy("/sim/reset", ResetEpisode)
-        self.goto_srv = rospy.ServiceProxy("/tracker/goto", Goto)
         self.log = EpisodeLog(f"{self.cfg.output_dir}/episodes.csv")
 
+    # ---- subscriber threads ----
     def _on_status(self, msg: EpisodeStatus) -> None:
-        with self._lock:
+        with self._cv:
             self._status = msg
+            self._cv.notify_all()
 
     def _on_odom(self, msg: Odometry) -> None:
+        p, v = msg.pose.pose.position, msg.twist.twist.linear
+        with self._cv:
+            t = msg.header.stamp.to_sec()
+            if self._odom_t and t < self._odom_t[-1]:  # a new episode never goes back in time; be safe
+                self._odom_t.clear()
+                self._odom.clear()
+            self._odom_t.append(t)
+            self._odom.append(((p.x, p.y, p.z), math.hypot(v.x, v.y, v.z)))
+            if len(self._odom_t) > 2000:
+                del self._odom_t[:1000]
+                del self._odom[:1000]
+            self._cv.notify_all()
+
+    def _on_timing(self, msg: PlanTiming) -> None:
+        if msg.status.startswith("success"):
+            with self._cv:
+                self._successes.append(msg.header.stamp.to_sec())
+
+    def _on_planner_status(self, msg: String) -> None:
+        with self._cv:
+            self._planner_status.append(msg.data)
+            self._cv.notify_all()
+
+    def _on_ack(self, msg: FrameAck) -> None:
+        if msg.consumer == self.planner_consumer:
+            with self._cv:
+                self._planner_ack = max(self._planner_ack, msg.stamp.to_sec())
+                self._cv.notify_all()
+
+    def _on_frame(self, msg: CameraInfo) -> None:
+        self._frames.put((msg.header.stamp.to_sec(), msg.header.stamp))
+
+    # ---- helpers (main thread) ----
+    def _wait(self, predicate, what: str, timeout_wall_s: float = WALL_WAIT_S) -> None:
+        deadline = time.monotonic() + timeout_wall_s
+        with self._cv:
+            while not predicate():
+                if rospy.is_shutdown():
+                    raise Interrupted(what)
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise TimeoutError(f"no {what} within {timeout_wall_s:.0f} s (wall)")
+                self._cv.wait(min(left, 0.1))
+
+    def _next_frame(self, after_s: float) -> tuple[float, rospy.Time]:
+        """The next depth frame stamped at or after after_s (older ones are acknowledged and skipped)."""
+        deadline = time.monotonic() + WALL_WAIT_S
+        while True:
+            if rospy.is_shutdown():
+                raise Interrupted("waiting for a depth frame")
+            try:
+                t, stamp = self._frames.get(timeout=0.1)
+            except queue.Empty:
+                if time.monotonic() > deadline:
+                    raise TimeoutError(f"no depth frame within {WALL_WAIT_S:.0f} s (wall)") from None
+                if self.lockstep and not self._seen_frame:
+                    self._startup_ack()
+                elif self.lockstep and self._last_ack is not None:
+                    # Acknowledgements are cumulative: repeating the last one is harmless and recovers one
+                    # lost while the connection to the simulator was being set up.
+                    self.ack_pub.publish(FrameAck(consumer=self.consumer, frame_seq=0, stamp=self._last_ack))
+                continue
+            self._seen_frame = True
+            self._last_frame_s = t
+            if self._sim_first_s is None:
+                self._sim_first_s = t
+            if t < after_s or t <= self._startup_ack_s:
+                self._ack(stamp)
+                continue
+            if not self.lockstep:  # not holding the simulator: only the newest frame matters
+                while not self._frames.empty():
+                    t, stamp = self._frames.get_nowait()
+            self._held = stamp
+            return t, stamp
+
+    def _startup_ack(self) -> None:
+        """At start-up the simulator may have published a frame before this node subscribed (it waits for one
+        depth consumer to connect, not all): it then waits for an acknowledgement of a frame this node never
+        received. Acknowledgements are cumulative, so acknowledge the first STARTUP_ACK_S of the simulator's
+        initial episode (no decision is taken in it); the first frame held comes after that."""
         with self._lock:
-            self._odom = msg
+            s = self._status
+        if s is None:
+            return
+        stamp = s.header.stamp + rospy.Duration(STARTUP_ACK_S)
+        self._startup_ack_s = max(self._startup_ack_s, stamp.to_sec())
+        self.ack_pub.publish(FrameAck(consumer=self.consumer, frame_seq=0, stamp=stamp))
 
-    def _on_bspline(self, _msg: Bspline) -> None:
+    def _ack(self, stamp: rospy.Time | None = None) -> None:
+        stamp = stamp or self._held
+        if stamp is None:
+            return
+        if self.lockstep:
+            self.ack_pub.publish(FrameAck(consumer=self.consumer, frame_seq=0, stamp=stamp))
+            if self._last_ack is None or stamp > self._last_ack:
+                self._last_ack = stamp
+        if stamp == self._held:
+            self._held = None
+
+    def _odom_at(self, t: float) -> tuple[tuple[float, float, float], float]:
+        """The newest odometry stamped at or before t (waiting until the one within an odometry period)."""
+        eps = 1e-6
+        self._wait(
+            lambda: self._odom_t and self._odom_t[-1] > t - self.odom_period_s + eps,
+            f"odometry at t={t:.3f}",
+        )
         with self._lock:
-            self._samples_episode += 1
+            i = bisect.bisect_right(self._odom_t, t + eps) - 1
+            return self._odom[max(i, 0)]
 
-    def _wait(self, predicate, timeout_sim_s: float) -> bool:
-        """Wait (sim time) until predicate() holds; False on timeout or shutdown."""
-        t_end = rospy.Time.now() + rospy.Duration(timeout_sim_s)
-        while not rospy.is_shutdown():
-            if predicate():
-                return True
-            if rospy.Time.now() > t_end:
-                return False
-            time.sleep(0.002)
-        return False
+    def _kill_tracker(self) -> str:
+        """Ask the tracker to shut down (roslaunch respawns it); returns the old node's URI."""
+        try:
+            code, _, old_uri = rospy.get_master().lookupNode(self.tracker_node)
+        except Exception:  # noqa: BLE001 - the master may refuse
+            code, old_uri = 0, ""
+        rosnode.kill_nodes([self.tracker_node])
+        return old_uri if code == 1 else ""
 
-    def run_episode(self, index: int) -> EpisodeOutcome:
+    def _wait_tracker(self, old_uri: str) -> None:
+        """Wait for the respawned tracker to be connected: odometry in, commands out, goto served."""
+        master = rospy.get_master()
+        deadline = time.monotonic() + WALL_WAIT_S
+        while True:
+            if rospy.is_shutdown():
+                raise Interrupted("restarting the tracker")
+            if time.monotonic() > deadline:
+                raise TimeoutError(
+                    f"{self.tracker_node} did not come back within {WALL_WAIT_S:.0f} s (respawn)"
+                )
+            time.sleep(0.05)
+            try:
+                code, _, uri = master.lookupNode(self.tracker_node)
+            except Exception:  # noqa: BLE001
+                continue
+            if code != 1 or not uri or uri == old_uri:
+                continue
+            try:
+                _, _, bus = xmlrpc.client.ServerProxy(uri).getBusInfo(rospy.get_name())
+            except (OSError, xmlrpc.client.Error):
+                continue
+            # roscpp: [id, peer, direction, transport, topic, connected, ...]
+            odom_in = any(c[2] == "i" and c[4] == "/odom" and c[5] for c in bus)
+            cmd_out = any(c[2] == "o" and c[4] == "/so3_cmd" for c in bus)
+            # /clock from the simulator and from this node (inbound connections are to publisher URIs).
+            clock_in = sum(1 for c in bus if c[2] == "i" and c[4] == "/clock") >= 2
+            if odom_in and (cmd_out or not self.lockstep) and (clock_in or not self.lockstep):
+                break
+        rospy.wait_for_service("/tracker/goto", timeout=WALL_WAIT_S)
+        if self.lockstep and self._held is not None:
+            # The held simulator publishes no /clock: give the new tracker the current sim time (the held
+            # frame's stamp, the last /clock the simulator published, so a repeat for every other node) before
+            # its first odometry. kr_tracker stamps odometry receipt with its clock; at 0 its watchdog would
+            # declare the odometry stale and publish a safe command competing with the real one.
+            self.clock_pub.publish(Clock(clock=self._held))
+            time.sleep(0.05)
+
+    def _goto(self, position: tuple[float, float, float], yaw: float) -> str:
+        goto = rospy.ServiceProxy("/tracker/goto", Goto)
+        r = goto(position=Point(*position), yaw=yaw, max_vel_mps=0.0, max_acc_mps2=0.0)
+        return "" if r.success else r.message
+
+    def _records_since(self, t0: float) -> int:
+        with self._lock:
+            return len(self._successes) - bisect.bisect_left(self._successes, t0)
+
+    # ---- one episode ----
+    def run_episode(self, index: int, samples_before: int) -> EpisodeOutcome:
         spec = plan_episode(self.cfg, index)
+
+        def outcome(kind: str, reason: str, t_start: float, t_now: float, records: int) -> EpisodeOutcome:
+            return EpisodeOutcome(index, spec.seed, kind, reason, max(0.0, t_now - t_start), records)
+
+        # Hold the simulator (lockstep) at a frame of the previous episode while the tracker restarts.
+        if self._held is None:
+            # The first hold: a fixed time into the simulator's initial episode, whether or not the start-up
+            # acknowledgement was needed, so every run's episodes have the same stamps (floating-point time
+            # arithmetic then gives bit-identical flights).
+            self._wait(lambda: self._status is not None, "simulator status")
+            self._startup_ack_s = max(self._startup_ack_s, self._status.header.stamp.to_sec() + STARTUP_ACK_S)
+            self._next_frame(0.0)
+        if self.cfg.restart_tracker and self.lockstep:
+            self._wait_tracker(self._kill_tracker())
         sx, sy, sz = spec.start_world
         start = Pose(
             position=Point(sx, sy, GROUND_Z_M),
@@ -95,97 +300,159 @@ class EpisodeManager:
                 0.0, 0.0, math.sin(spec.start_yaw_rad / 2), math.cos(spec.start_yaw_rad / 2)
             ),
         )
+        old_tracker = ""
+        if self.cfg.restart_tracker and not self.lockstep:
+            # Not holding the simulator: the new tracker must only see the new episode's odometry.
+            old_tracker = self._kill_tracker()
         resp = self.reset_srv(seed=spec.seed, world_file="", start=start, goal=Point(*spec.goal_world))
+        self._held = None  # the reset released the held frame
         if not resp.success:
-            return EpisodeOutcome(index, spec.seed, "reset_failed", resp.message, 0.0, 0)
+            return outcome("reset_failed", resp.message, 0.0, 0.0, 0)
         episode_id = resp.episode_id
-        # Odometry of the new episode must reach the tracker before the goto starts from it.
-        if not self._wait(lambda: self._status is not None and self._status.episode_id == episode_id, 10.0):
-            return EpisodeOutcome(index, spec.seed, "reset_failed", "no status for the new episode", 0.0, 0)
-        t0 = rospy.Time.now()
-        takeoff = np.array([sx, sy, sz])
-        self.goto_srv(position=Point(*takeoff), yaw=spec.start_yaw_rad, max_vel_mps=0.0, max_acc_mps2=0.0)
-
-        def at_takeoff() -> bool:
-            o = self._odom
-            if o is None:
-                return False
-            p = o.pose.pose.position
-            v = o.twist.twist.linear
-            return math.dist((p.x, p.y, p.z), takeoff) < 0.15 and math.hypot(v.x, v.y, v.z) < 0.3
-
-        if not self._wait(at_takeoff, self.takeoff_timeout_s):
-            return EpisodeOutcome(index, spec.seed, "timeout", "take-off did not reach its altitude", 0.0, 0)
+        self._wait(
+            lambda: self._status is not None and self._status.episode_id == episode_id,
+            f"status of episode {episode_id}",
+        )
+        t0 = self._status.header.stamp.to_sec()
+        if self.cfg.restart_tracker and not self.lockstep:
+            self._wait_tracker(old_tracker)
+        # Take-off at the first frame of the episode.
+        t, _ = self._next_frame(t0)
+        why = self._goto(spec.start_world, spec.start_yaw_rad)
+        self._ack()
+        if why:
+            return outcome("reset_failed", f"take-off refused: {why}", t0, t, 0)
+        while True:
+            t, _ = self._next_frame(t)
+            p, speed = self._odom_at(t)
+            if math.dist(p, spec.start_world) < TAKEOFF_TOLERANCE_M and speed < TAKEOFF_MAX_SPEED_MPS:
+                break
+            if t - t0 > self.cfg.takeoff_timeout_s:
+                return outcome("timeout", "take-off did not reach its altitude", t0, t, 0)
+            self._ack()
+        # The goal, at this frame once the planner has processed it; the frame is acknowledged once the
+        # planner has taken (or rejected) the goal.
+        self._wait(lambda: self._planner_ack >= t - 1e-9, f"planner acknowledgement of frame {t:.3f}")
         with self._lock:
-            self._samples_episode = 0
+            n_status = len(self._planner_status)
         goal = PoseStamped()
-        goal.header.stamp = rospy.Time.now()
+        goal.header.stamp = rospy.Time.from_sec(t)
         goal.header.frame_id = "world"
         goal.pose.position = Point(*spec.goal_world)
         goal.pose.orientation.w = 1.0
         self.goal_pub.publish(goal)
+        answer: list[str] = []
 
-        def ended() -> bool:
-            s = self._status
-            return (
-                s is not None
-                and s.episode_id == episode_id
-                and (s.reached_goal or s.collided or not s.active)
-            )
+        def answered() -> bool:
+            for s in self._planner_status[n_status:]:
+                if s.startswith(("goal accepted", "goal rejected")):
+                    answer.append(s)
+                    return True
+            return False
 
-        finished = self._wait(ended, self.cfg.episode_timeout_s)
-        duration = (rospy.Time.now() - t0).to_sec()
-        with self._lock:
-            samples = self._samples_episode
-            status = self._status
-        if rospy.is_shutdown():
-            return EpisodeOutcome(
-                index, spec.seed, "interrupted", "shutdown during the episode", duration, samples
-            )
-        if not finished:
-            return EpisodeOutcome(
-                index,
-                spec.seed,
-                "timeout",
-                f"no goal within {self.cfg.episode_timeout_s} s",
-                duration,
-                samples,
-            )
-        outcome = "goal_reached" if status.reached_goal else ("collision" if status.collided else "ended")
-        return EpisodeOutcome(index, spec.seed, outcome, status.reason, duration, samples)
-
-    def run(self) -> None:
+        self._wait(answered, "answer of the planner to the goal")
+        t_goal = t
+        self._ack()
+        if answer[0].startswith("goal rejected"):
+            return outcome("goal_rejected", answer[0], t_goal, t, 0)
         stop = StopCondition(self.cfg)
-        total_samples, finished = 0, 0
+        while True:
+            t, _ = self._next_frame(t)
+            records = self._records_since(t_goal)
+            with self._lock:
+                s = self._status
+            if s is not None and s.episode_id == episode_id:
+                if s.reached_goal:
+                    return outcome("goal_reached", s.reason, t_goal, t, records)
+                if s.collided:
+                    return outcome("collision", s.reason, t_goal, t, records)
+                if not s.active:
+                    return outcome("ended", s.reason, t_goal, t, records)
+            if t - t_goal > self.cfg.episode_timeout_s:
+                return outcome(
+                    "timeout", f"no goal within {self.cfg.episode_timeout_s:g} s", t_goal, t, records
+                )
+            done, why = stop.done(0, samples_before + records)
+            if done:
+                return outcome("stopped", why, t_goal, t, records)
+            self._ack()
+
+    def run(self) -> int:
+        stop = StopCondition(self.cfg)
+        total, finished = 0, 0
         counts: dict[str, int] = {}
         wall0 = time.monotonic()
-        while not rospy.is_shutdown():
-            done, why = stop.done(finished, total_samples)
-            if done:
-                rospy.loginfo(f"episode_manager: done: {why}")
-                break
-            out = self.run_episode(finished)
-            self.log.append(out)
-            finished += 1
-            total_samples += out.samples
-            counts[out.outcome] = counts.get(out.outcome, 0) + 1
-            rospy.loginfo(
-                f"episode {finished}/{self.cfg.episodes} seed {out.seed}: {out.outcome} ({out.reason}) "
-                f"{out.sim_duration_s:.1f} s sim, {out.samples} samples; total {total_samples} samples, "
-                f"{time.monotonic() - wall0:.0f} s wall; outcomes {counts}"
-            )
-        self.log.close()
+        rospy.loginfo(
+            f"episode_manager: {self.cfg.episodes} episodes, seeds "
+            f"{self.cfg.seeds or f'{self.cfg.first_seed}...'}, max samples {self.cfg.max_samples or 'none'}, "
+            f"{'lockstep' if self.lockstep else 'free-running'} simulator, output {self.cfg.output_dir}"
+        )
+        code = 0
+        try:
+            while not rospy.is_shutdown():
+                done, why = stop.done(finished, total)
+                if done:
+                    rospy.loginfo(f"episode_manager: done: {why}")
+                    break
+                try:
+                    out = self.run_episode(finished, total)
+                except Interrupted as exc:
+                    rospy.logwarn(f"episode_manager: interrupted while {exc}")
+                    break
+                except (TimeoutError, rospy.ServiceException, rospy.ROSException) as exc:
+                    rospy.logerr(f"episode_manager: episode {finished}: {exc}; stopping the run")
+                    code = 1
+                    break
+                self.log.append(out)
+                finished += 1
+                total += out.samples
+                counts[out.outcome] = counts.get(out.outcome, 0) + 1
+                print(
+                    f"[collect] episode {finished}/{self.cfg.episodes} seed {out.seed}: {out.outcome} "
+                    f"({out.reason}) {out.sim_duration_s:.1f} s sim, {out.samples} samples; total {total} "
+                    f"samples, {time.monotonic() - wall0:.0f} s wall; outcomes {counts}",
+                    flush=True,
+                )
+                if out.outcome == "stopped":
+                    break
+        finally:
+            self.log.close()
+            self._write_summary(finished, total, counts, time.monotonic() - wall0)
         rospy.signal_shutdown("collection finished")
+        return code
+
+    def _write_summary(self, finished: int, samples: int, counts: dict[str, int], wall_s: float) -> None:
+        """<output_dir>/collect_summary.yaml: what the run did and how fast (sim seconds per wall second)."""
+        sim_s = (self._last_frame_s - self._sim_first_s) if self._sim_first_s is not None else 0.0
+        summary = {
+            "episodes": finished,
+            "samples": samples,
+            "outcomes": counts,
+            "lockstep": self.lockstep,
+            "sim_s": round(sim_s, 6),
+            "wall_s": round(wall_s, 3),
+            "real_time_factor": round(sim_s / wall_s, 4) if wall_s > 0 else 0.0,
+        }
+        path = f"{self.cfg.output_dir}/collect_summary.yaml"
+        with open(path, "w") as f:
+            yaml.safe_dump(summary, f, sort_keys=False)
+        print(
+            f"[collect] finished: {finished} episodes, {samples} samples, {sim_s:.1f} s sim in "
+            f"{wall_s:.1f} s wall (real-time factor {summary['real_time_factor']:.2f}); outcomes {counts}; "
+            f"summary {path}",
+            flush=True,
+        )
 
 
 def main() -> int:
     rospy.init_node("episode_manager")
     try:
-        EpisodeManager().run()
+        manager = EpisodeManager()
     except (ValueError, FileNotFoundError) as exc:
         rospy.logfatal(f"episode_manager: {exc}")
-        return 1
-    return 0
+        print(f"episode_manager: error: {exc}", file=sys.stderr, flush=True)
+        return 2
+    return manager.run()
 
 
 if __name__ == "__main__":

@@ -8,6 +8,12 @@
 // protocol of docs/CONVENTIONS.md). Malformed input (non-finite odometry, depth frames that are not 32FC1 or
 // have the wrong size, goals in another frame) is skipped with a throttled log line; rejected goals are
 // logged with the reason.
+//
+// Data collection (issue 6, docs/collect.md): with ~collector_output_dir set, every successful plan is
+// recorded by an embedded cpp_data_collector::DatasetWriter right after planning (PlanObserver), with exactly
+// the depth frame and odometry the plan used, the goal, the B-spline, status, timings, episode id and world
+// seed (from sim/status). The dataset is finalised after ros::spin() returns (SIGINT); writer statistics are
+// logged periodically and at exit.
 #include <actionlib/client/simple_action_client.h>
 #include <geometry_msgs/PoseStamped.h>
 #include <nav_msgs/Odometry.h>
@@ -28,13 +34,19 @@
 #include <tf2_ros/transform_listener.h>
 #include <visualization_msgs/MarkerArray.h>
 
+#include <algorithm>
+#include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <deque>
+#include <filesystem>
 #include <memory>
 #include <optional>
 #include <string>
+#include <vector>
 
+#include "cpp_data_collector/dataset_writer.h"
 #include "fast_planner/replanner.h"
 
 namespace fast_planner {
@@ -55,6 +67,174 @@ geometry_msgs::Point ToPoint(const Eigen::Vector3d& p) {
   return m;
 }
 
+// The embedded data collector: a PlanObserver that converts each successful plan into a
+// cpp_data_collector::PlanRecord and hands it to the DatasetWriter (which copies it and writes on its own
+// thread). Owned by the node; the planner manager holds a shared_ptr to it.
+class PlanCollector : public PlanObserver {
+ public:
+  // `config_path`: a writer YAML (config/collector.yaml); `output_dir` overrides its output_dir. The writer
+  // itself is created at the first camera_info (the intrinsics go into every shard header).
+  PlanCollector(const std::string& config_path, const std::string& output_dir, const std::string& commit,
+                std::vector<std::pair<std::string, std::string>> run_info)
+      : run_info_(std::move(run_info)) {
+    config_ = config_path.empty() ? cpp_data_collector::WriterConfig()
+                                  : cpp_data_collector::LoadWriterConfigFile(config_path);
+    config_.output_dir = output_dir;
+    if (!commit.empty()) config_.software_commit = commit;
+    config_.Validate();
+    // Refuse an existing dataset now (the writer would too, but only at the first camera_info).
+    namespace fs = std::filesystem;
+    if (fs::exists(fs::path(output_dir) / "manifest.yaml")) {
+      throw std::runtime_error("collector output directory " + output_dir +
+                               " already holds a dataset (manifest.yaml); choose another output_dir");
+    }
+    bspline_.knots.reserve(config_.max_ctrl_pts + 8);
+    bspline_.ctrl_pts_world.reserve(config_.max_ctrl_pts);
+    record_us_.reserve(1 << 16);
+  }
+
+  bool started() const { return writer_ != nullptr; }
+
+  void Start(const CameraIntrinsics& k) {
+    if (writer_) return;
+    config_.image_width = static_cast<uint32_t>(k.width);
+    config_.image_height = static_cast<uint32_t>(k.height);
+    config_.camera_fx_px = k.fx;
+    config_.camera_fy_px = k.fy;
+    config_.camera_cx_px = k.cx;
+    config_.camera_cy_px = k.cy;
+    writer_ = std::make_unique<cpp_data_collector::DatasetWriter>(config_);
+    for (const auto& [key, value] : run_info_) writer_->SetRunInfo(key, value);
+    ROS_INFO("fast_planner: recording every plan to %s (%ux%u, queue %u, policy %s, commit %s)",
+             config_.output_dir.c_str(), config_.image_width, config_.image_height, config_.queue_capacity,
+             cpp_data_collector::ToString(config_.full_queue_policy), config_.software_commit.c_str());
+  }
+
+  void SetEpisode(int64_t episode_id, uint64_t world_seed) {
+    episode_id_ = episode_id;
+    world_seed_ = world_seed;
+  }
+  void SetMapUpdateMs(double ms) { map_update_ms_ = ms; }
+
+  void OnPlan(const PlanRecord& plan) override {
+    if (!plan.result || !plan.result->spline) return;
+    if (!writer_ || !plan.depth || !plan.odometry) {
+      ++not_recorded_;
+      ROS_WARN_THROTTLE(kLogThrottleS, "fast_planner: plan not recorded (%s); %lu so far",
+                        !writer_ ? "collector not started: no camera_info yet"
+                                 : (!plan.depth ? "no depth frame" : "no odometry"),
+                        static_cast<unsigned long>(not_recorded_));
+      return;
+    }
+    const auto t0 = std::chrono::steady_clock::now();
+    const PlanResult& res = *plan.result;
+    const DepthFrame& d = *plan.depth;
+    const Odometry& o = *plan.odometry;
+    cpp_data_collector::PlanRecord r;
+    r.episode_id = episode_id_;
+    r.world_seed = world_seed_;
+    r.sim_time_s = plan.request.start_time_s;
+    r.depth.data_m = d.depth_m.data();
+    r.depth.width = static_cast<uint32_t>(d.intrinsics.width);
+    r.depth.height = static_cast<uint32_t>(d.intrinsics.height);
+    r.depth.row_stride_bytes = 0;
+    r.depth.stamp_s = d.stamp_s;
+    r.odom.stamp_s = o.stamp_s;
+    r.odom.p_world_body = {o.p_world_body.x(), o.p_world_body.y(), o.p_world_body.z()};
+    r.odom.v_world = {o.v_world.x(), o.v_world.y(), o.v_world.z()};
+    const Eigen::Quaterniond q = o.q_world_body.normalized();
+    r.odom.q_world_body = {q.x(), q.y(), q.z(), q.w()};
+    r.odom.w_body = {o.w_body.x(), o.w_body.y(), o.w_body.z()};
+    r.goal_world = {plan.goal.x(), plan.goal.y(), plan.goal.z()};
+    const kr_tracker::NonUniformBspline& sp = *res.spline;
+    bspline_.order = sp.order();
+    bspline_.traj_id = res.traj_id;
+    bspline_.start_time_s = res.start_time_s;
+    bspline_.knots.assign(sp.knots().begin(), sp.knots().end());
+    const Eigen::MatrixXd& cp = sp.ctrl_pts();
+    bspline_.ctrl_pts_world.resize(static_cast<size_t>(cp.rows()));
+    for (Eigen::Index i = 0; i < cp.rows(); ++i) {
+      bspline_.ctrl_pts_world[static_cast<size_t>(i)] = {cp(i, 0), cp(i, 1), cp(i, 2)};
+    }
+    bspline_.yaw_pts.clear();  // no yaw points: the tracker faces the direction of travel
+    bspline_.yaw_dt_s = 0.0;
+    r.bspline = std::move(bspline_);
+    // The front end's outcome (reached goal / horizon / safe stop): every recorded plan succeeded.
+    r.status.code = static_cast<int32_t>(res.search_status);
+    r.status.text = res.reason;
+    r.timings = {map_update_ms_, res.timings.frontend_ms, res.timings.optimization_ms, res.timings.total_ms};
+    const cpp_data_collector::RecordResult rr = writer_->Record(r);
+    bspline_ = std::move(r.bspline);  // keep the vectors' capacity
+    const double us =
+        std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count();
+    if (record_us_.size() < record_us_.capacity()) record_us_.push_back(us);
+    if (!rr.ok()) {
+      ROS_WARN_THROTTLE(kLogThrottleS, "fast_planner: record %s%s%s (written %lu, dropped %lu, rejected %lu)",
+                        cpp_data_collector::ToString(rr.status), rr.reason.empty() ? "" : ": ",
+                        rr.reason.c_str(), static_cast<unsigned long>(writer_->stats().written),
+                        static_cast<unsigned long>(writer_->stats().dropped),
+                        static_cast<unsigned long>(writer_->stats().rejected));
+    }
+  }
+
+  std::string StatsLine() const {
+    if (!writer_) return "collector not started (no camera_info received)";
+    const cpp_data_collector::WriterStats s = writer_->stats();
+    char buf[512];
+    std::snprintf(
+        buf, sizeof(buf),
+        "collector %s: submitted %lu, written %lu, dropped %lu, rejected %lu, lost %lu, not recorded "
+        "%lu, shards %lu, %.1f MB, queue high water %u, blocked calls %lu%s%s; Record() %s",
+        config_.output_dir.c_str(), static_cast<unsigned long>(s.submitted),
+        static_cast<unsigned long>(s.written), static_cast<unsigned long>(s.dropped),
+        static_cast<unsigned long>(s.rejected), static_cast<unsigned long>(s.lost),
+        static_cast<unsigned long>(not_recorded_), static_cast<unsigned long>(s.shards_completed),
+        static_cast<double>(s.bytes_written) / 1e6, s.queue_high_water,
+        static_cast<unsigned long>(s.blocked_calls), s.failed ? ", writer error: " : "", s.last_error.c_str(),
+        RecordCostText().c_str());
+    return buf;
+  }
+
+  // Completes the dataset (drains the queue, final manifest). Returns false on a writer error. Runs after
+  // ros::spin() has returned, when rosconsole is already shut down: prints to stdout/stderr directly.
+  bool Finalize() {
+    if (!writer_) {
+      std::fprintf(stderr, "[fast_planner] %s\n", StatsLine().c_str());
+      return true;
+    }
+    const cpp_data_collector::FinalizeResult f = writer_->Finalize();
+    if (f.ok) {
+      std::fprintf(stdout, "[fast_planner] dataset finalised: %s\n", StatsLine().c_str());
+    } else {
+      std::fprintf(stderr, "[fast_planner] dataset finalised with an error (%s): %s\n", f.error.c_str(),
+                   StatsLine().c_str());
+    }
+    std::fflush(stdout);
+    return f.ok;
+  }
+
+ private:
+  std::string RecordCostText() const {
+    if (record_us_.empty()) return "not called";
+    std::vector<double> v = record_us_;
+    std::sort(v.begin(), v.end());
+    const auto q = [&](double f) { return v[std::min(v.size() - 1, static_cast<size_t>(f * v.size()))]; };
+    char buf[128];
+    std::snprintf(buf, sizeof(buf), "median %.1f us, p99 %.1f us over %zu plans", q(0.5), q(0.99), v.size());
+    return buf;
+  }
+
+  cpp_data_collector::WriterConfig config_;
+  std::vector<std::pair<std::string, std::string>> run_info_;
+  std::unique_ptr<cpp_data_collector::DatasetWriter> writer_;
+  cpp_data_collector::BsplineData bspline_;
+  int64_t episode_id_ = -1;
+  uint64_t world_seed_ = 0;
+  double map_update_ms_ = 0.0;
+  uint64_t not_recorded_ = 0;
+  std::vector<double> record_us_;
+};
+
 class FastPlannerNode {
  public:
   FastPlannerNode(ros::NodeHandle nh, ros::NodeHandle pnh)
@@ -62,6 +242,7 @@ class FastPlannerNode {
         cfg_(LoadPlannerConfig(pnh.param<std::string>("config", ""))),
         replanner_(cfg_),
         consumer_(pnh.param<std::string>("frame_ack_consumer", "fast_planner")),
+        tracker_accept_timeout_s_(pnh.param<double>("tracker_accept_timeout_s", 1.0)),
         tf_listener_(tf_buffer_) {
     bspline_pub_ = nh_.advertise<quad_msgs::Bspline>("planner/bspline", 10);
     timing_pub_ = nh_.advertise<quad_msgs::PlanTiming>("planner/timing", 10);
@@ -80,11 +261,66 @@ class FastPlannerNode {
     ROS_INFO("fast_planner: map source %s, max %.1f m/s, %.1f m/s^2, horizon %.1f m",
              ToString(cfg_.map.source), cfg_.limits.max_vel_mps, cfg_.limits.max_acc_mps2,
              cfg_.search.horizon_m);
+    const std::string out_dir = pnh.param<std::string>("collector_output_dir", "");
+    if (!out_dir.empty()) {
+      collector_ =
+          std::make_shared<PlanCollector>(pnh.param<std::string>("collector_config", ""), out_dir,
+                                          pnh.param<std::string>("collector_commit", ""), ReadRunInfo(pnh));
+      replanner_.manager().SetObserver(collector_);
+      const double period = pnh.param<double>("collector_stats_period_s", 30.0);
+      if (period > 0.0) {
+        stats_timer_ = nh_.createWallTimer(ros::WallDuration(period), [this](const ros::WallTimerEvent&) {
+          ROS_INFO("fast_planner: %s", collector_->StatsLine().c_str());
+        });
+      }
+    }
+  }
+
+  // Completes the dataset, if recording (after ros::spin() returns). False on a writer error.
+  bool FinalizeCollector() {
+    stats_timer_.stop();
+    return !collector_ || collector_->Finalize();
   }
 
  private:
+  // ~collector_run_info: a mapping of scalars for the manifest's run_info (seeds, episodes, ...).
+  static std::vector<std::pair<std::string, std::string>> ReadRunInfo(const ros::NodeHandle& pnh) {
+    std::vector<std::pair<std::string, std::string>> out;
+    XmlRpc::XmlRpcValue v;
+    if (!pnh.getParam("collector_run_info", v)) return out;
+    if (v.getType() != XmlRpc::XmlRpcValue::TypeStruct) {
+      throw std::runtime_error("~collector_run_info must be a mapping of key: value");
+    }
+    for (auto it = v.begin(); it != v.end(); ++it) {
+      XmlRpc::XmlRpcValue& x = it->second;
+      std::string text;
+      switch (x.getType()) {
+        case XmlRpc::XmlRpcValue::TypeString:
+          text = static_cast<std::string>(x);
+          break;
+        case XmlRpc::XmlRpcValue::TypeInt:
+          text = std::to_string(static_cast<int>(x));
+          break;
+        case XmlRpc::XmlRpcValue::TypeBoolean:
+          text = static_cast<bool>(x) ? "true" : "false";
+          break;
+        case XmlRpc::XmlRpcValue::TypeDouble: {
+          char buf[64];
+          std::snprintf(buf, sizeof(buf), "%.17g", static_cast<double>(x));
+          text = buf;
+          break;
+        }
+        default:
+          text = x.toXml();
+      }
+      out.emplace_back(it->first, text);
+    }
+    return out;
+  }
+
   void OnOdom(const nav_msgs::Odometry::ConstPtr& msg) {
     ConnectTracker();
+    if (msg->header.stamp < episode_start_) return;  // the previous episode's, arriving after the reset
     Odometry o;
     o.stamp_s = msg->header.stamp.toSec();
     const auto& p = msg->pose.pose.position;
@@ -113,6 +349,15 @@ class FastPlannerNode {
                        msg->K[2],
                        msg->K[5]};
     intrinsics_ = k;
+    if (collector_ && !collector_->started()) {
+      try {
+        collector_->Start(k);
+      } catch (const std::exception& e) {
+        ROS_FATAL("fast_planner: cannot start the data collector: %s", e.what());
+        collector_failed_ = true;
+        ros::shutdown();
+      }
+    }
   }
 
   // The camera pose at `stamp`: the newest odometry not after it, moved on at its velocity (in lockstep the
@@ -163,12 +408,35 @@ class FastPlannerNode {
     goal.bspline = *pending_;
     tracker_->sendGoal(goal);
     pending_.reset();
+    WaitForTrackerAccept(goal.bspline.traj_id);
+  }
+
+  // Waits (wall time, bounded) until the tracker has taken the goal just sent. The action client spins its
+  // own thread. In lockstep this makes the new trajectory take effect before the simulator advances (the
+  // frame is acknowledged after this returns), so the flight does not depend on message timing.
+  void WaitForTrackerAccept(int64_t traj_id) {
+    if (tracker_accept_timeout_s_ <= 0.0) return;
+    const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(tracker_accept_timeout_s_);
+    while (tracker_->getState() == actionlib::SimpleClientGoalState::PENDING) {
+      if (ros::WallTime::now() > deadline || !ros::ok()) {
+        ++tracker_accept_timeouts_;
+        ROS_WARN("fast_planner: the tracker did not take trajectory %ld within %.2f s (%lu times so far)",
+                 static_cast<long>(traj_id), tracker_accept_timeout_s_,
+                 static_cast<unsigned long>(tracker_accept_timeouts_));
+        return;
+      }
+      ros::WallDuration(0.0002).sleep();
+    }
   }
 
   void OnDepth(const sensor_msgs::Image::ConstPtr& msg) {
     ConnectTracker();
     SendPending();
-    ProcessDepth(*msg);
+    // A frame of the previous episode arriving after the reset is acknowledged but not used.
+    if (msg->header.stamp >= episode_start_) {
+      ProcessDepth(*msg);
+      last_depth_stamp_ = std::max(last_depth_stamp_, msg->header.stamp);
+    }
     // Acknowledge every frame, also one that was skipped: the simulator must not wait on a frame we cannot
     // use.
     quad_msgs::FrameAck ack;
@@ -219,6 +487,7 @@ class FastPlannerNode {
       return;
     }
     last_map_update_ms_ = map_update.total_ms;
+    if (collector_) collector_->SetMapUpdateMs(map_update.total_ms);
     Handle(out, msg.header.stamp);
     PublishMapSlice();
   }
@@ -231,24 +500,54 @@ class FastPlannerNode {
     }
     const auto& p = msg->pose.position;
     ReplannerOutput out;
-    const double now = ros::Time::now().toSec();
-    const std::string why = replanner_.SetGoal(Eigen::Vector3d(p.x, p.y, p.z), now, &out);
+    // The plan's time is the newest sensor stamp received (the depth frame or odometry it plans from), not
+    // the clock: in lockstep this makes a goal's plan independent of when the message arrived.
+    ros::Time now = last_depth_stamp_;
+    if (!odom_.empty()) now = std::max(now, ros::Time(odom_.back().stamp_s));
+    if (now.isZero()) now = ros::Time::now();
+    const std::string why = replanner_.SetGoal(Eigen::Vector3d(p.x, p.y, p.z), now.toSec(), &out);
     if (!why.empty()) {
       ROS_WARN("fast_planner: goal (%.2f, %.2f, %.2f) rejected: %s", p.x, p.y, p.z, why.c_str());
       Status("goal rejected: " + why);
       return;
     }
     ROS_INFO("fast_planner: new goal (%.2f, %.2f, %.2f)", p.x, p.y, p.z);
-    Handle(out, ros::Time::now());
+    Handle(out, now);
+    // After the plan (and the tracker taking it): an episode manager may advance the simulator on this.
+    char buf[128];
+    std::snprintf(buf, sizeof(buf), "goal accepted: (%.3f, %.3f, %.3f) at %.3f", p.x, p.y, p.z, now.toSec());
+    Status(buf);
   }
 
   void OnEpisode(const quad_msgs::EpisodeStatus::ConstPtr& msg) {
+    if (collector_) collector_->SetEpisode(msg->episode_id, msg->world_seed);
     if (episode_id_ && *episode_id_ == msg->episode_id) return;
     if (episode_id_) {
-      ROS_INFO("fast_planner: episode %u: resetting the planner", msg->episode_id);
+      ROS_INFO("fast_planner: episode %u (world seed %lu): resetting the planner", msg->episode_id,
+               static_cast<unsigned long>(msg->world_seed));
+      // The new episode's first status is stamped with its start: older odometry and frames still in the
+      // queues belong to the previous episode and are ignored from now on.
+      if (last_depth_stamp_ >= msg->header.stamp) {
+        ROS_ERROR(
+            "fast_planner: a depth frame of episode %u (stamp %.3f) was processed before its status "
+            "(start %.3f): this episode's map is not reproducible",
+            msg->episode_id, last_depth_stamp_.toSec(), msg->header.stamp.toSec());
+      }
+      episode_start_ = msg->header.stamp;
+      // Odometry of the new episode that arrived before this status (another connection) is kept.
+      std::deque<Odometry> early;
+      for (const Odometry& o : odom_) {
+        if (o.stamp_s >= episode_start_.toSec()) early.push_back(o);
+      }
       replanner_.Reset();
       odom_.clear();
+      pending_.reset();
+      last_depth_stamp_ = ros::Time();
       if (global_points_) replanner_.manager().SetGlobalMap(*global_points_);
+      for (const Odometry& o : early) {
+        Handle(replanner_.OnOdometry(o), ros::Time(o.stamp_s));
+        odom_.push_back(o);
+      }
     }
     episode_id_ = msg->episode_id;
   }
@@ -403,6 +702,8 @@ class FastPlannerNode {
   PlannerConfig cfg_;
   Replanner replanner_;
   std::string consumer_;
+  double tracker_accept_timeout_s_ = 1.0;
+  uint64_t tracker_accept_timeouts_ = 0;
   std::unique_ptr<actionlib::SimpleActionClient<quad_msgs::TrackBsplineAction>> tracker_;
   std::optional<quad_msgs::Bspline> pending_;
   tf2_ros::Buffer tf_buffer_;
@@ -416,6 +717,13 @@ class FastPlannerNode {
   std::optional<std::vector<Eigen::Vector3d>> global_points_;
   double last_map_update_ms_ = 0.0;
   ros::WallTime last_slice_;
+  ros::Time episode_start_;     // stamp of the current episode's start (messages before it are stale)
+  ros::Time last_depth_stamp_;  // newest depth frame processed in this episode
+  std::shared_ptr<PlanCollector> collector_;
+  ros::WallTimer stats_timer_;
+
+ public:
+  bool collector_failed_ = false;
 };
 
 }  // namespace
@@ -426,10 +734,12 @@ int main(int argc, char** argv) {
   ros::NodeHandle nh, pnh("~");
   try {
     fast_planner::FastPlannerNode node(nh, pnh);
+    // roscpp's SIGINT handler only requests shutdown: spin returns, then the dataset is finalised here.
     ros::spin();
+    const bool ok = node.FinalizeCollector();
+    return ok && !node.collector_failed_ ? 0 : 1;
   } catch (const std::exception& e) {
     ROS_FATAL("fast_planner: %s", e.what());
     return 1;
   }
-  return 0;
 }

@@ -62,8 +62,13 @@ class CollectConfig(BaseModel):
     episodes: int = Field(10, ge=1)
     # Stop once this many samples (expert plans) were recorded; 0 = no limit.
     max_samples: int = Field(0, ge=0)
-    # Sim-time limit of one episode; a slower episode ends with outcome "timeout".
+    # Sim-time limit of one episode (from the goal); a slower episode ends with outcome "timeout".
     episode_timeout_s: float = Field(60.0, gt=0.0)
+    # Sim-time limit of the take-off (from the reset) to the start altitude.
+    takeoff_timeout_s: float = Field(15.0, gt=0.0)
+    # Restart the tracker before every reset, so that it starts from the new episode's start (kr_tracker keeps
+    # its previous reference across a simulator reset) and every episode starts from the same tracker state.
+    restart_tracker: bool = True
     start_goal: StartGoalConfig = StartGoalConfig()
 
 
@@ -81,6 +86,64 @@ def load_collect_config(path: str | os.PathLike, overrides: dict | None = None) 
     except ValidationError as exc:
         msgs = [f"{'.'.join(str(x) for x in e['loc'])}: {e['msg']}" for e in exc.errors()]
         raise ValueError(f"{p}: invalid collection config: " + "; ".join(msgs)) from None
+
+
+def parse_seeds(text: str) -> list[int]:
+    """'1,2,3' or '1 2 3' -> [1, 2, 3]; errors name the argument."""
+    items = [t for t in str(text).replace(",", " ").split() if t]
+    try:
+        seeds = [int(t) for t in items]
+    except ValueError:
+        raise ValueError(f"seeds '{text}': not a list of integers (e.g. seeds:=1,2,3)") from None
+    if any(x < 0 for x in seeds):
+        raise ValueError(f"seeds '{text}': seeds must be >= 0")
+    return seeds
+
+
+def manager_config(path: str | os.PathLike, params: dict) -> CollectConfig:
+    """The episode manager's config: the YAML at `path` with its node parameters (launch arguments) applied.
+
+    params: output_dir (str), seeds (str, "" = config's), episodes (int, 0 = config's), max_samples (int,
+    < 0 = config's), episode_timeout_s (float, 0 = config's). Raises ValueError naming the bad argument.
+    """
+    known = {"output_dir", "seeds", "episodes", "max_samples", "episode_timeout_s"}
+    unknown = set(params) - known
+    if unknown:
+        raise ValueError(f"unknown episode manager parameter(s): {', '.join(sorted(unknown))}")
+
+    def number(key: str, kind: type, default):
+        v = params.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, int | float | str):
+            raise ValueError(f"{key} '{v}': not a number")
+        try:
+            x = kind(v)
+        except (TypeError, ValueError):
+            raise ValueError(f"{key} '{v}': not a number") from None
+        if kind is int and isinstance(v, float) and v != x:
+            raise ValueError(f"{key} '{v}': not an integer")
+        return x
+
+    overrides: dict = {}
+    out = str(params.get("output_dir", "") or "").strip()
+    if out:
+        overrides["output_dir"] = out
+    seeds = str(params.get("seeds", "") or "").strip()
+    if seeds:
+        overrides["seeds"] = parse_seeds(seeds)
+    episodes = number("episodes", int, 0)
+    if episodes < 0:
+        raise ValueError(f"episodes {episodes}: must be >= 1 (0: the config's)")
+    if episodes:
+        overrides["episodes"] = episodes
+    max_samples = number("max_samples", int, -1)
+    if max_samples >= 0:
+        overrides["max_samples"] = max_samples
+    timeout = number("episode_timeout_s", float, 0.0)
+    if timeout < 0:
+        raise ValueError(f"episode_timeout_s {timeout}: must be > 0 (0: the config's)")
+    if timeout > 0:
+        overrides["episode_timeout_s"] = timeout
+    return load_collect_config(path, overrides)
 
 
 @dataclass(frozen=True)
@@ -127,7 +190,8 @@ def plan_episode(cfg: CollectConfig, index: int) -> EpisodeSpec:
 class EpisodeOutcome:
     index: int
     seed: int
-    outcome: str  # "goal_reached" | "collision" | "timeout" | "reset_failed" | "interrupted"
+    # "goal_reached" | "collision" | "timeout" | "goal_rejected" | "reset_failed" | "interrupted"
+    outcome: str
     reason: str
     sim_duration_s: float
     samples: int

@@ -1,0 +1,196 @@
+"""Launch-time preparation of a collection run (`roslaunch quad_il collect.launch`).
+
+collect.launch evaluates these commands while it parses (`<param command=...>`), before any node starts, so a
+bad argument stops the launch with a clear message and nothing is overwritten:
+
+    python -m quad_il.collection.prepare output-dir DIR
+        checks DIR (it must not hold a dataset), creates it and prints its absolute path;
+    python -m quad_il.collection.prepare sim-config DIR --base sim.yaml --time-mode M [--factor F]
+        --consumers a,b [--lockstep-timeout-s T]
+        writes DIR/sim_config.yaml (the base simulator config with the run's time mode and lockstep consumers,
+        every relative path made absolute) and prints its path;
+    python -m quad_il.collection.prepare commit
+        prints `git rev-parse HEAD` of the repository (with "-dirty" if tracked files changed), or "unknown".
+
+Relative DIRs are taken relative to the repository root (QUAD_IL_ROOT, else this file's repository), not to
+the current directory (roslaunch and its nodes run in different directories).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import yaml
+
+TIME_MODES = {
+    "lockstep": "lockstep",
+    "realtime": "real_time",
+    "factor": "factor",
+}
+SIM_CONFIG_NAME = "sim_config.yaml"
+
+
+class PrepareError(ValueError):
+    """A bad argument of collect.launch; the message names it."""
+
+
+def repo_root() -> Path:
+    env = os.environ.get("QUAD_IL_ROOT")
+    if env:
+        return Path(env).resolve()
+    # src/quad_il/src/quad_il/collection/prepare.py -> the repository root (also through the devel space's
+    # __init__, which imports from the source tree).
+    return Path(__file__).resolve().parents[5]
+
+
+def resolve_output_dir(text: str, root: Path | None = None) -> Path:
+    if not text or not text.strip():
+        raise PrepareError("output_dir is empty: pass output_dir:=DIR")
+    p = Path(text.strip()).expanduser()
+    if not p.is_absolute():
+        p = (root or repo_root()) / p
+    return p.resolve()
+
+
+def dataset_files(d: Path) -> list[str]:
+    """Files in d that belong to a dataset (the writer refuses such a directory)."""
+    if not d.is_dir():
+        return []
+    names = sorted(
+        n.name
+        for n in d.iterdir()
+        if n.name in ("manifest.yaml", "episodes.csv") or n.name.startswith("shard_")
+    )
+    return names
+
+
+def prepare_output_dir(text: str, root: Path | None = None) -> Path:
+    d = resolve_output_dir(text, root)
+    if d.exists() and not d.is_dir():
+        raise PrepareError(f"output_dir {d} exists and is not a directory")
+    existing = dataset_files(d)
+    if existing:
+        raise PrepareError(
+            f"output_dir {d} already holds a dataset ({', '.join(existing[:3])}"
+            f"{', ...' if len(existing) > 3 else ''}); collect.launch never overwrites one: "
+            "pass another output_dir:=DIR or remove it"
+        )
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise PrepareError(f"output_dir {d} cannot be created: {exc.strerror}") from None
+    if not os.access(d, os.W_OK):
+        raise PrepareError(f"output_dir {d} is not writable")
+    return d
+
+
+def _absolute(path_text: str, base_dir: Path) -> str:
+    if not path_text:
+        return path_text
+    p = Path(path_text)
+    return str(p if p.is_absolute() else (base_dir / p).resolve())
+
+
+def make_sim_config(
+    out_dir: Path,
+    base: Path,
+    time_mode: str,
+    factor: float = 1.0,
+    consumers: list[str] | None = None,
+    lockstep_timeout_s: float = 20.0,
+) -> Path:
+    """Writes out_dir/sim_config.yaml: `base` with the run's time mode; returns its path."""
+    if time_mode not in TIME_MODES:
+        raise PrepareError(f"time_mode '{time_mode}' is not one of {', '.join(TIME_MODES)}")
+    if not factor > 0:
+        raise PrepareError(f"time_factor {factor} must be > 0")
+    if not lockstep_timeout_s > 0:
+        raise PrepareError(f"lockstep_timeout_s {lockstep_timeout_s} must be > 0")
+    if not base.is_file():
+        raise PrepareError(f"sim_config {base} not found")
+    cfg = yaml.safe_load(base.read_text())
+    if not isinstance(cfg, dict) or "time" not in cfg or "lockstep" not in cfg:
+        raise PrepareError(f"sim_config {base} is not a quad_sim config (no time/lockstep sections)")
+    base_dir = base.resolve().parent
+    cfg["vehicle_file"] = _absolute(cfg.get("vehicle_file", ""), base_dir)
+    world = cfg.get("world", {})
+    if isinstance(world, dict) and world.get("file"):
+        world["file"] = _absolute(world["file"], base_dir)
+    vm = cfg.get("voxel_map", {})
+    if isinstance(vm, dict) and vm.get("octomap_file"):
+        vm["octomap_file"] = _absolute(vm["octomap_file"], base_dir)
+    cfg["time"]["mode"] = TIME_MODES[time_mode]
+    cfg["time"]["real_time_factor"] = float(factor) if time_mode == "factor" else 1.0
+    lockstep = time_mode == "lockstep"
+    cfg["lockstep"]["depth_consumers"] = list(consumers or []) if lockstep else []
+    cfg["lockstep"]["wait_for_command"] = lockstep
+    cfg["lockstep"]["timeout_s"] = float(lockstep_timeout_s)
+    out = out_dir / SIM_CONFIG_NAME
+    header = (
+        f"# Written by quad_il.collection.prepare for this collection run from {base.resolve()}\n"
+        f"# (time mode {time_mode}); the simulator of collect.launch loads it.\n"
+    )
+    out.write_text(header + yaml.safe_dump(cfg, sort_keys=False))
+    return out
+
+
+def software_commit(root: Path | None = None) -> str:
+    r = root or repo_root()
+    try:
+        head = subprocess.run(
+            ["git", "-C", str(r), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10
+        )
+        if head.returncode != 0:
+            return "unknown"
+        dirty = subprocess.run(
+            ["git", "-C", str(r), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            timeout=20,
+        )
+        return head.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
+    except (OSError, subprocess.TimeoutExpired):
+        return "unknown"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="quad_il.collection.prepare", description=__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    a = sub.add_parser("output-dir")
+    a.add_argument("dir")
+    b = sub.add_parser("sim-config")
+    b.add_argument("dir")
+    b.add_argument("--base", required=True)
+    b.add_argument("--time-mode", required=True)
+    b.add_argument("--factor", type=float, default=1.0)
+    b.add_argument("--consumers", default="")
+    b.add_argument("--lockstep-timeout-s", type=float, default=20.0)
+    sub.add_parser("commit")
+    args = ap.parse_args(argv)
+    try:
+        if args.cmd == "output-dir":
+            out = str(prepare_output_dir(args.dir))
+        elif args.cmd == "sim-config":
+            d = prepare_output_dir(args.dir)
+            consumers = [c for c in args.consumers.replace(",", " ").split() if c]
+            out = str(
+                make_sim_config(
+                    d, Path(args.base), args.time_mode, args.factor, consumers, args.lockstep_timeout_s
+                )
+            )
+        else:
+            out = software_commit()
+    except PrepareError as exc:
+        print(f"collect.launch: error: {exc}", file=sys.stderr)
+        return 1
+    # No newline: roslaunch uses the output as the parameter's value.
+    sys.stdout.write(out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
