@@ -119,7 +119,11 @@ class TrackerNode {
       Publish(step.command, step.ref, msg->header.stamp);
       return;
     }
-    last_odom_rx_ = ros::Time::now();
+    // Receipt time; before the first /clock (sim time) now() is zero, so the message's own stamp stands in:
+    // a zero receipt time would make the first watchdog tick call fresh odometry stale and publish a hold
+    // command that a lockstepped simulator could take instead of this one.
+    const ros::Time rx = ros::Time::now();
+    last_odom_rx_ = rx.isZero() ? msg->header.stamp : rx;
     if (stale_) ROS_INFO("kr_tracker: odometry is back");
     stale_ = false;
     if (first) {
@@ -156,6 +160,7 @@ class TrackerNode {
   void OnWatchdog() {
     if (!manager_.have_odom()) return;
     const ros::Time now = ros::Time::now();
+    if (now.isZero()) return;  // no clock yet (sim time): nothing can be judged stale
     if ((now - last_odom_rx_).toSec() <= config_.odom_timeout_s) return;
     if (!stale_) {
       ROS_WARN("kr_tracker: odometry stale (%.3f s > %.3f s): holding the safe hover command",
