@@ -18,12 +18,23 @@ bench_training() {
   python -m quad_il.learning.scale_bench ${SCALE_TRAIN_ARGS:-}
 }
 
-# Collection: parallel collection workers (collect_rps_1worker, collect_rps_2workers). Not written yet: the
-# lead replaces this function's body with the measurement.
+# Collection: `python -m quad_il.collection.parallel` with 1 and then 2 workers on the same world seeds and
+# episode count (lockstep collect.launch workers, each on its own ROS master port), records per wall second of
+# the whole run (start-up and finalisation included). SCALE_COLLECT_SEEDS / SCALE_COLLECT_EPISODES change them.
 bench_collection() {
-  echo "bench-scale: collect_rps_1worker, collect_rps_2workers: not measured yet (the collection part of" \
-    "scripts/bench/scale.sh is not written)" >&2
-  return 3
+  local work seeds episodes n rps
+  work=$(mktemp -d "${TMPDIR:-/tmp}/bench_scale_collect.XXXXXX")
+  seeds=${SCALE_COLLECT_SEEDS:-1-6}
+  episodes=${SCALE_COLLECT_EPISODES:-6}
+  for n in 1 2; do
+    echo "[bench scale] collection with $n worker(s): seeds $seeds, $episodes episodes -> $work/w$n" >&2
+    python -m quad_il.collection.parallel --workers "$n" --seeds "$seeds" --episodes "$episodes" \
+      --out "$work/w$n" --timeout-s 1800 >&2 || { rm -rf "$work"; return 1; }
+    rps=$(python -c 'import sys, yaml; print(yaml.safe_load(open(sys.argv[1]))["records_per_s"])' \
+      "$work/w$n/collection.yaml")
+    if [ "$n" = 1 ]; then echo "BENCH collect_rps_1worker $rps records/s"; else echo "BENCH collect_rps_2workers $rps records/s"; fi
+  done
+  rm -rf "$work"
 }
 
 parts=("$@")

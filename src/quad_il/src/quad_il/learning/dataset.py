@@ -180,7 +180,8 @@ def read_source(path: Path, kind: str, shards: ShardOptions = DEFAULT_SHARD_OPTI
 
 
 def expand_paths(paths: Sequence[str | Path]) -> list[tuple[Path, str]]:
-    """Each given path -> [(path, kind)] with kind 'npz' or 'shards'; directories are searched for *.npz."""
+    """Each given path -> [(path, kind)] with kind 'npz' or 'shards'. Directories are searched for *.npz; a
+    directory that is no dataset itself but holds dataset directories (a parallel collection) gives each."""
     if not paths:
         raise DatasetError("no dataset given (data.paths is empty)")
     out: list[tuple[Path, str]] = []
@@ -192,8 +193,12 @@ def expand_paths(paths: Sequence[str | Path]) -> list[tuple[Path, str]]:
             out.append((p, "npz"))
         elif p.is_dir():
             files = sorted(p.glob("*.npz"))
+            subsets = sorted(d for d in p.iterdir() if d.is_dir() and (d / "manifest.yaml").is_file())
             if files:
                 out += [(f, "npz") for f in files]
+            elif not (p / "manifest.yaml").exists() and not any(p.glob("shard_*")) and subsets:
+                # A collection of datasets (quad_il.collection.parallel: worker_0/, worker_1/, ...).
+                out += [(d, "shards") for d in subsets]
             else:
                 out.append((p, "shards"))
         else:
