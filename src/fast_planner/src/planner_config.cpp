@@ -78,6 +78,7 @@ PlannerConfig ReadPlannerConfig(StrictYaml& y) {
   c.map.local_update_range_m = GetVec3(y, "map.local_update_range_m", Positive());
   c.map.inflation_m = y.Get<double>("map.inflation_m", NonNegative());
   c.map.esdf_max_distance_m = y.Get<double>("map.esdf_max_distance_m", Positive());
+  c.map.esdf_on_demand = y.Get<bool>("map.esdf_on_demand");
   auto& d = c.map.depth;
   d.min_ray_length_m = y.Get<double>("map.depth.min_ray_length_m", NonNegative());
   d.max_ray_length_m = y.Get<double>("map.depth.max_ray_length_m", Positive());

@@ -50,6 +50,10 @@ struct MapConfig {
   double inflation_m =
       0.3;  // occupied voxels are inflated by this radius for the front end's collision checks
   double esdf_max_distance_m = 2.0;  // ESDF distances are exact up to this and clamped beyond
+  // Depth source: compute the ESDF of the latest frame's window only when a plan needs it (the optimiser is
+  // its only user), not after every frame. The plans are identical either way; it saves most of the per-frame
+  // mapping cost when frames arrive faster than plans are made.
+  bool esdf_on_demand = true;
   DepthIntegrationConfig depth;
 };
 

@@ -11,6 +11,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <utility>
 
 #include "fast_planner/bspline_optimizer.h"
 #include "fast_planner/esdf.h"
@@ -56,7 +57,8 @@ struct PlanTimings {
   double optimization_ms = 0.0;  // fit + NLopt (all attempts)
   double reallocation_ms = 0.0;  // time re-allocation (all attempts)
   double check_ms = 0.0;         // final collision checks (all attempts)
-  double total_ms = 0.0;         // the whole Plan() call
+  double total_ms = 0.0;         // the whole Plan() call, without map_prep_ms
+  double map_prep_ms = 0.0;      // ESDF computed for this plan before it (esdf_on_demand, global source)
 };
 
 struct PlanResult {
@@ -110,8 +112,9 @@ class PlannerManager {
   // Forgets the map, the last observations and the trajectory ids (a new episode).
   void Reset();
 
-  // Depth source: integrates the frame and recomputes the ESDF in the local window around the camera. Global
-  // source: only remembers the frame (for the observer). Throws std::invalid_argument on a malformed frame.
+  // Depth source: integrates the frame and recomputes the ESDF in the local window around the camera (with
+  // map.esdf_on_demand: marks it to be recomputed by the next Plan()). Global source: only remembers the
+  // frame (for the observer). Throws std::invalid_argument on a malformed frame.
   MapUpdateResult UpdateDepth(std::shared_ptr<const DepthFrame> frame);
   // Remembers the odometry (for the observer). Throws std::invalid_argument on non-finite odometry.
   void UpdateOdometry(const Odometry& odom);
@@ -141,6 +144,7 @@ class PlannerManager {
 
   const PlannerConfig& config() const { return cfg_; }
   const VoxelMap& map() const { return map_; }
+  // With map.esdf_on_demand the ESDF is the one of the last Plan(), not necessarily of the latest frame.
   const Esdf& esdf() const { return esdf_; }
   std::shared_ptr<const DepthFrame> last_depth() const { return last_depth_; }
   const std::optional<Odometry>& last_odometry() const { return last_odom_; }
@@ -149,6 +153,8 @@ class PlannerManager {
   // Makes sure the ESDF covers the box around both points (global source).
   void EnsureEsdfCovers(const Eigen::Vector3d& a, const Eigen::Vector3d& b);
   double EscapeRadius(const Eigen::Vector3d& start) const;
+  // Plan() once the ESDF is up to date.
+  PlanResult PlanOnPreparedMap(const PlanRequest& request);
   PlanResult Fail(PlanStatus status, const std::string& reason, const PlanRequest& request,
                   double t0_ms) const;
 
@@ -158,6 +164,8 @@ class PlannerManager {
   KinodynamicAstar search_;
   BsplineOptimizer optimizer_;
   bool global_map_set_ = false;
+  // esdf_on_demand: the window of the latest frame whose ESDF is not computed yet.
+  std::optional<std::pair<Eigen::Vector3i, Eigen::Vector3i>> esdf_pending_;
   std::shared_ptr<const DepthFrame> last_depth_;
   std::optional<Odometry> last_odom_;
   std::shared_ptr<PlanObserver> observer_;

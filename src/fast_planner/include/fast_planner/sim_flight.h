@@ -43,7 +43,7 @@ struct FlightStats {
   int starts_not_kept = 0;                // plans whose time re-allocation had to change the start state
   int tracker_rejections = 0;             // trajectories the tracker refused (should be 0)
   std::vector<PlanTimings> plan_timings;  // of the successful plans
-  std::vector<double> map_update_ms;      // per depth frame: ray casting + ESDF
+  std::vector<double> map_update_ms;      // per depth frame: ray casting + ESDF (0 with esdf_on_demand)
   std::vector<double> map_integrate_ms;   // per depth frame: ray casting alone
   std::vector<double> map_esdf_ms;        // per depth frame: ESDF alone
   std::vector<std::string> failure_reasons;
