@@ -10,7 +10,7 @@ Per controller: a private ROS master with `roslaunch quad_il infer.launch contro
 lockstep with the controller as depth consumer, tracker, controller), then `python -m
 quad_il.evaluation.runner` flies every episode through the simulator's reset service; results are appended
 to OUT/<controller>.jsonl (an interrupted run resumes after the last finished episode). A controller whose
-node is not built is reported as unavailable (the expert's fast_planner_node, at the time of writing). With
+node is not built is reported as unavailable. With
 --snapshots, rviz snapshots (tools/snapshot.py) are taken at those sim times of each controller's run.
 BENCH lines: eval_<controller>_success_rate, _collision_rate, _timeout_rate (ratios in [0, 1]).
 """
@@ -219,8 +219,7 @@ def run_controller(args: argparse.Namespace, controller: str, out: Path, episode
 
     Episode mode `relaunch` (default): one launch per episode whose simulator config holds the episode (seed,
     start, goal), so every episode starts from freshly started nodes. `reset`: one launch, the episodes
-    through the simulator's reset service; it needs a tracker that re-anchors its reference on a new episode
-    (kr_tracker keeps the previous reference at the time of writing: take-offs after the first one fail).
+    through the simulator's reset service (kr_tracker re-anchors its reference on each new episode).
     """
     why = node_available(controller)
     if why:
