@@ -1,26 +1,65 @@
 #!/usr/bin/env bash
-# `make demo`: the main job end to end on the default configuration. It grows with the pipeline; it runs the
-# stages that exist and says which do not exist yet.
+# `make demo`: the main job end to end on the default configuration (after `make build`):
+#   1. collect demonstrations: the expert (fast_planner + its C++ collector) flies seeded worlds in lockstep,
+#      2 parallel collect.launch workers (python -m quad_il.collection.parallel);
+#   2. train the policy on them (training_only/train_on_cpp_datasets.py; exports policy.ts);
+#   3. offline evaluation on demonstrations from worlds never seen in training (training_only/evaluate_policy.py);
+#   4. closed-loop evaluation: the expert, the Python policy and the C++ (LibTorch) policy fly the same held-out
+#      episodes (python -m quad_il.evaluation.run_eval); Markdown report with plots.
+# Every stage's output is under $OUT (default results/demo); a stage whose output is complete is skipped, so an
+# interrupted demo continues where it stopped (DEMO_FRESH=1 starts over). Larger settings by variables:
+#   DEMO_TRAIN_EPISODES (60) DEMO_TEST_EPISODES (12) DEMO_EPOCHS (12) DEMO_EVAL_EPISODES (5) DEMO_WORKERS (2)
+#   DEMO_TRAIN_ARGS (extra train_on_cpp_datasets.py arguments, e.g. "--set model.variant=large")
 set -euo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$ROOT"
 # shellcheck disable=SC1091
 source scripts/env.sh
 OUT=${OUT:-$ROOT/results/demo}
+TRAIN_EPISODES=${DEMO_TRAIN_EPISODES:-60}
+TEST_EPISODES=${DEMO_TEST_EPISODES:-12}
+EPOCHS=${DEMO_EPOCHS:-12}
+EVAL_EPISODES=${DEMO_EVAL_EPISODES:-5}
+WORKERS=${DEMO_WORKERS:-2}
+[ "${DEMO_FRESH:-0}" = 1 ] && rm -rf "$OUT"
 mkdir -p "$OUT"
-PORT=${ROS_PORT:-$(python -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')}
-export ROS_MASTER_URI=http://127.0.0.1:$PORT
-export ROS_HOME=$OUT/ros_home
-pids=()
-cleanup() { for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done; wait 2>/dev/null || true; }
-trap cleanup EXIT
+t_start=$(date +%s)
+stage() { echo "[demo] $(($(date +%s) - t_start)) s: $*"; }
 
-echo "[demo] stage 1/1: message interfaces (private ROS master on port $PORT)"
-roscore -p "$PORT" > "$OUT/roscore.log" 2>&1 & pids+=($!)
-until rostopic list >/dev/null 2>&1; do sleep 0.2; done
-rosrun quad_il bspline_test_publisher __name:=demo_bspline_pub > "$OUT/publisher.log" 2>&1 & pids+=($!)
-timeout 20 rostopic echo -n 1 /demo_bspline_pub/bspline > "$OUT/bspline.txt"
-echo "[demo] a Bspline published from C++ and received by Python: $OUT/bspline.txt"
-echo "[demo] md5 quad_msgs/Bspline = $(rosmsg md5 quad_msgs/Bspline) (Fast-Planner: b352d4f7278a546180de67cbe6793e49)"
-echo "[demo] not built yet: simulator (issue 3), tracker (4), expert planner (5), collection (6), training (7),"
-echo "[demo]                closed-loop evaluation (8), interactive imitation learning (9)."
+collect() {  # name seeds episodes
+  local dir="$OUT/data/$1"
+  if [ -f "$dir/collection.yaml" ]; then
+    stage "collection $1 already done ($dir)"
+    return
+  fi
+  rm -rf "$dir"
+  python -m quad_il.collection.parallel --workers "$WORKERS" --seeds "$2" --episodes "$3" --out "$dir"
+}
+
+stage "1/4 collecting $TRAIN_EPISODES training episodes (world seeds 100-...) and $TEST_EPISODES held-out ones (seeds 7000-...)"
+collect train "100-$((100 + TRAIN_EPISODES - 1))" "$TRAIN_EPISODES"
+collect heldout "7000-$((7000 + TEST_EPISODES - 1))" "$TEST_EPISODES"
+
+RUN="$OUT/runs/policy"
+if [ -f "$RUN/policy.ts" ]; then
+  stage "2/4 policy already trained ($RUN/policy.ts)"
+else
+  stage "2/4 training ($EPOCHS epochs; progress below)"
+  rm -rf "$RUN"
+  # shellcheck disable=SC2086
+  python training_only/train_on_cpp_datasets.py --config config/train.yaml --data "$OUT/data/train" \
+    --out "$OUT/runs" --name policy --epochs "$EPOCHS" ${DEMO_TRAIN_ARGS:-}
+fi
+
+stage "3/4 offline evaluation on the held-out demonstrations"
+python training_only/evaluate_policy.py --policy "$RUN" --data "$OUT/data/heldout" --out "$OUT/offline"
+
+stage "4/4 closed-loop evaluation: expert, Python policy, C++ policy on $EVAL_EPISODES held-out episodes"
+python -m quad_il.evaluation.run_eval --policy "$RUN/policy.ts" --seeds "9000-$((9000 + EVAL_EPISODES - 1))" \
+  --episodes "$EVAL_EPISODES" --out "$OUT/eval"
+
+stage "done"
+echo "[demo] training data:        $OUT/data/train/collection.yaml"
+echo "[demo] trained policy:       $RUN (loss curves: $RUN/loss_curves.png)"
+echo "[demo] offline metrics:      $OUT/offline/summary.md"
+echo "[demo] closed-loop report:   $OUT/eval/report.md"
