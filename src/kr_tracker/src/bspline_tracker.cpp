@@ -215,7 +215,9 @@ PositionReference BsplineTracker::Update(const VehicleState& state) {
   last_state_ = state;
   has_last_state_ = true;
 
-  if (pending_ && t >= pending_->start_time_s) {
+  // Strictly after start_time: a goal starting exactly at this odometry's stamp may arrive before or after it
+  // was processed; either way it takes over at the next one.
+  if (pending_ && t > pending_->start_time_s) {
     if (running_) {
       EndRunning(GoalEventKind::kReplaced, t,
                  "replaced by goal " + std::to_string(pending_->id) + " (traj_id " +

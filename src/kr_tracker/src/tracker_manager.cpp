@@ -58,6 +58,13 @@ ControlStep TrackerManager::OnOdometry(const VehicleState& state) {
   } else {
     dt = std::clamp(state.t_s - last_state_.t_s, 0.0, 0.1);
   }
+  // A B-spline goal takes over at the first odometry after its start_time (as BsplineTracker replaces a
+  // running goal), not when it arrives: which odometry message a goal arrives before depends on message
+  // timing, so switching on arrival would make a lockstepped flight depend on it.
+  if (bspline_switch_at_s_ && state.t_s > *bspline_switch_at_s_) {
+    bspline_switch_at_s_.reset();
+    if (active_ != &bspline_) SwitchTo(&bspline_);
+  }
   last_state_ = state;
   step.ref = active_->Update(state);
   const ControlOutput out = controller_.Compute(step.ref, state, dt);
@@ -110,6 +117,7 @@ std::string TrackerManager::OnEpisodeStatus(uint32_t episode_id, double start_ti
 
 void TrackerManager::ReAnchor(const VehicleState& state, const std::string& reason) {
   bspline_.AbortAll(reason.empty() ? "re-anchored" : reason);
+  bspline_switch_at_s_.reset();
   // Deactivating every tracker drops the line tracker's goal and profile and the B-spline tracker's state
   // (its direction-of-travel yaw limiter restarts from the new reference when it is activated again).
   hover_.Deactivate();
@@ -158,6 +166,7 @@ std::string TrackerManager::Switch(const std::string& tracker, bool* deferred) {
     if (deferred) *deferred = true;
     return "";
   }
+  bspline_switch_at_s_.reset();  // an explicit switch overrides a pending auto-activation
   return SwitchTo(next);
 }
 
@@ -165,6 +174,7 @@ std::string TrackerManager::GotoNow(const Eigen::Vector3d& p_world, double yaw_r
                                     double max_acc_mps2) {
   const std::string why = line_.SetGoal(p_world, yaw_rad, max_vel_mps, max_acc_mps2);
   if (!why.empty()) return why;
+  bspline_switch_at_s_.reset();  // a goto overrides a pending auto-activation
   return SwitchTo(&line_);
 }
 
@@ -197,7 +207,10 @@ std::string TrackerManager::AddGoal(uint64_t goal_id, const BsplineGoalSpec& spe
   }
   const std::string why = bspline_.AddGoal(goal_id, spec, now_s, last_state_);
   if (!why.empty()) return why;
-  if (config_.bspline_auto_activate && active_ != &bspline_) SwitchTo(&bspline_);
+  if (config_.bspline_auto_activate && active_ != &bspline_) {
+    bspline_switch_at_s_ =
+        bspline_switch_at_s_ ? std::min(*bspline_switch_at_s_, spec.start_time_s) : spec.start_time_s;
+  }
   return "";
 }
 

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <vector>
 
 #include "kr_tracker/tracker_manager.h"
 
@@ -272,6 +273,37 @@ TEST_F(TrackerManagerTest, LineTrackerAfterAResetStartsAtRestFromTheNewPosition)
   EXPECT_TRUE(s.ref.p_world.isApprox(new_start_, 1e-9)) << s.ref.p_world.transpose();
   EXPECT_LT(s.ref.v_world.norm(), 1e-9);
   EXPECT_LT(s.ref.a_world.norm(), 1e-9);
+}
+
+// Lockstep reproducibility: a goal starting exactly at an odometry stamp may reach the tracker before or
+// after that odometry was processed. Both orders must fly the same commands: the goal (and the switch to the
+// B-spline tracker) take effect at the first odometry strictly after its start_time.
+TEST(TrackerManager, GoalTakesEffectAfterItsStartTimeWhateverTheArrivalOrder) {
+  std::vector<std::vector<So3Command>> runs;
+  for (const bool goal_first : {true, false}) {
+    TrackerManager m(TrackerConfig{}, kMass, kG, kMaxThrust);
+    Flight f(&m);
+    const Eigen::Vector3d a(1.0, 2.0, 1.5);
+    f.Start(1.0, a);
+    ASSERT_EQ(m.Goto(a + Eigen::Vector3d(0.5, 0, 0), 0.0, 0.0, 0.0), "");
+    f.Run(0.5);  // the line tracker is still moving: a switch at a different step would show
+    const double t_start = f.t();  // the next odometry's stamp
+    const BsplineGoalSpec goal = Line(f.p(), f.p() + Eigen::Vector3d(0, 4, 0), t_start, 4.0);
+    std::vector<So3Command> cmds;
+    if (goal_first) ASSERT_EQ(m.AddGoal(1, goal, t_start), "");
+    cmds.push_back(f.Step().command);  // the odometry stamped t_start
+    if (!goal_first) ASSERT_EQ(m.AddGoal(1, goal, t_start), "");
+    EXPECT_EQ(m.active_tracker(), "line") << "no switch before the start time has passed";
+    for (int i = 0; i < 200; ++i) cmds.push_back(f.Step().command);
+    EXPECT_EQ(m.active_tracker(), "bspline");
+    EXPECT_TRUE(m.bspline().running_goal().has_value());
+    runs.push_back(cmds);
+  }
+  ASSERT_EQ(runs[0].size(), runs[1].size());
+  for (size_t i = 0; i < runs[0].size(); ++i) {
+    EXPECT_TRUE(runs[0][i].force_world_N == runs[1][i].force_world_N) << "step " << i;
+    EXPECT_TRUE(runs[0][i].q_world_des.coeffs() == runs[1][i].q_world_des.coeffs()) << "step " << i;
+  }
 }
 
 TEST(TrackerManager, ReAnchorResetsTheIntegralAndTheDirectionOfTravelYaw) {

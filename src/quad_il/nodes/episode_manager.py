@@ -42,7 +42,7 @@ from quad_il.collection.episodes import (
     manager_config,
     plan_episode,
 )
-from quad_msgs.msg import EpisodeStatus, FrameAck, PlanTiming
+from quad_msgs.msg import EpisodeStatus, FrameAck, PlanTiming, SO3Command
 from quad_msgs.srv import Goto, ResetEpisode
 
 GROUND_Z_M = 0.125  # the vehicle's collision box half height: the start rests on the ground
@@ -83,9 +83,12 @@ class EpisodeManager:
         self._held: rospy.Time | None = None  # a frame not acknowledged yet (lockstep)
         self._seen_frame = False
         self._startup_ack_s = 0.0
+        self._startup_stamp: rospy.Time | None = None
         self._last_ack: rospy.Time | None = None
         self._sim_first_s: float | None = None
         self._last_frame_s = 0.0
+        self._cmd_t = 0.0  # stamp of the tracker's newest command
+        rospy.Subscriber("/so3_cmd", SO3Command, self._on_cmd, queue_size=100, tcp_nodelay=True)
         rospy.Subscriber("/sim/status", EpisodeStatus, self._on_status, queue_size=10)
         rospy.Subscriber("/odom", Odometry, self._on_odom, queue_size=400, tcp_nodelay=True)
         rospy.Subscriber("/planner/timing", PlanTiming, self._on_timing, queue_size=100)
@@ -107,6 +110,11 @@ class EpisodeManager:
     def _on_status(self, msg: EpisodeStatus) -> None:
         with self._cv:
             self._status = msg
+            self._cv.notify_all()
+
+    def _on_cmd(self, msg: SO3Command) -> None:
+        with self._cv:
+            self._cmd_t = msg.header.stamp.to_sec()
             self._cv.notify_all()
 
     def _on_odom(self, msg: Odometry) -> None:
@@ -194,8 +202,10 @@ class EpisodeManager:
             s = self._status
         if s is None:
             return
-        stamp = s.header.stamp + rospy.Duration(STARTUP_ACK_S)
-        self._startup_ack_s = max(self._startup_ack_s, stamp.to_sec())
+        if self._startup_stamp is None:  # from the first status only (later ones have later stamps)
+            self._startup_stamp = s.header.stamp + rospy.Duration(STARTUP_ACK_S)
+            self._startup_ack_s = self._startup_stamp.to_sec()
+        stamp = self._startup_stamp
         self.ack_pub.publish(FrameAck(consumer=self.consumer, frame_seq=0, stamp=stamp))
 
     def _ack(self, stamp: rospy.Time | None = None) -> None:
@@ -267,7 +277,16 @@ class EpisodeManager:
             self.clock_pub.publish(Clock(clock=self._held))
             time.sleep(0.05)
 
-    def _goto(self, position: tuple[float, float, float], yaw: float) -> str:
+    def _goto(self, position: tuple[float, float, float], yaw: float, at_s: float | None = None) -> str:
+        if at_s is not None and self.lockstep:
+            # The tracker applies a goto from the next odometry it processes. Wait until it has answered the
+            # odometry of this frame's control period, so that is always the following one (otherwise which
+            # step the take-off starts at would depend on message timing).
+            eps = 1e-6
+            self._wait(
+                lambda: self._cmd_t > at_s - self.odom_period_s + eps,
+                f"tracker command of the control period at t={at_s:.3f}",
+            )
         goto = rospy.ServiceProxy("/tracker/goto", Goto)
         r = goto(position=Point(*position), yaw=yaw, max_vel_mps=0.0, max_acc_mps2=0.0)
         return "" if r.success else r.message
@@ -289,7 +308,10 @@ class EpisodeManager:
             # acknowledgement was needed, so every run's episodes have the same stamps (floating-point time
             # arithmetic then gives bit-identical flights).
             self._wait(lambda: self._status is not None, "simulator status")
-            self._startup_ack_s = max(self._startup_ack_s, self._status.header.stamp.to_sec() + STARTUP_ACK_S)
+            if self._startup_stamp is None:
+                # Only from the first status: a later (periodic) one has a later stamp, moving the hold.
+                self._startup_stamp = self._status.header.stamp + rospy.Duration(STARTUP_ACK_S)
+                self._startup_ack_s = self._startup_stamp.to_sec()
             self._next_frame(0.0)
         if self.cfg.restart_tracker and self.lockstep:
             self._wait_tracker(self._kill_tracker())
@@ -318,7 +340,7 @@ class EpisodeManager:
             self._wait_tracker(old_tracker)
         # Take-off at the first frame of the episode.
         t, _ = self._next_frame(t0)
-        why = self._goto(spec.start_world, spec.start_yaw_rad)
+        why = self._goto(spec.start_world, spec.start_yaw_rad, at_s=t)
         self._ack()
         if why:
             return outcome("reset_failed", f"take-off refused: {why}", t0, t, 0)

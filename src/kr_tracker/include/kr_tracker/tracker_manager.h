@@ -104,6 +104,8 @@ class TrackerManager {
 
   std::optional<uint32_t> episode_id_;
   bool reset_pending_ = false;
+  // Auto-activation of the B-spline tracker at the first odometry after this time (AddGoal).
+  std::optional<double> bspline_switch_at_s_;
   double reset_start_s_ = 0.0;
   std::string reset_reason_;
   std::vector<Deferred> deferred_;
