@@ -12,7 +12,15 @@ from quad_il.imitation import EpisodeOutcome, ImitationError, Observation, Round
 from quad_il.imitation.config import HGDAggerConfig
 from quad_il.imitation.dataset import read_episode
 from quad_il.imitation.learners import make_learner
-from quad_il.imitation.ros_collector import CollectorCore, depth_from_msg, load_round_config, spline_from_msg
+from quad_il.imitation.pairing import StampPairer
+from quad_il.imitation.ros_collector import (
+    CollectorCore,
+    EpisodeBook,
+    depth_from_msg,
+    load_round_config,
+    spline_from_msg,
+)
+from quad_il.imitation.wait_peers import missing_peers, parse_counts
 
 
 def _time(t: float) -> SimpleNamespace:
@@ -69,3 +77,52 @@ def test_the_core_pairs_decides_and_writes_one_file_per_episode(tmp_path: Path) 
     (rec,) = read_episode(tmp_path / "data" / "episode_000009.npz")
     assert rec.obs.frame_seq == 1 and rec.round_index == 2 and rec.partition.value == "intervention"
     assert core.episodes_written == 1 and core.records_written == 1
+
+
+def test_an_empty_bspline_message_means_no_plan() -> None:
+    msg = SimpleNamespace(order=3, traj_id=0, start_time=_time(1.0), knots=[], pos_pts=[])
+    assert spline_from_msg(msg) is None
+
+
+def test_episode_book_follows_status_and_ignores_stale_goals() -> None:
+    book = EpisodeBook()
+    assert book.status(1, True, 0.0) == [("start", 1, False)]
+    assert not book.flying
+    assert book.status(1, True, 1.0) == []  # the periodic repeat
+    # The reset: episode 1 ends unflown, episode 2 starts at 3.0 s; the latched goal of 2.5 s is stale.
+    assert book.status(2, True, 3.0) == [("end", 1, False), ("start", 2, False)]
+    assert not book.set_goal(2.5, np.zeros(3)) and not book.flying
+    assert book.set_goal(3.2, np.array([5.0, 0.0, 1.0])) and book.flying
+    np.testing.assert_array_equal(book.goal, [5.0, 0.0, 1.0])
+    # Goal reached: the episode ends (flown); its repeated final status does not reopen it.
+    assert book.status(2, False, 9.0) == [("end", 2, True)]
+    assert book.status(2, False, 10.0) == [] and book.episode_id is None
+    assert not book.set_goal(10.5, np.zeros(3))
+    assert book.status(3, True, 11.0) == [("start", 3, False)]
+
+
+def test_pairer_reports_waiting_sources_and_flushes_everything() -> None:
+    pairer = StampPairer(["expert", "learner"])
+    obs = Observation(1.5, 3, 1, [0, 0, 1], [0, 0, 0], [0, 0, 0, 1], [5, 0, 1])
+    assert not pairer.waiting_for("expert", 1.5)  # no observation yet
+    pairer.add_observation(obs)
+    assert pairer.waiting_for("expert", 1.5) and pairer.waiting_for("learner", 1.5)
+    pairer.add_action("expert", 1.5, None)
+    assert not pairer.waiting_for("expert", 1.5) and pairer.waiting_for("learner", 1.5)
+    (frame,) = pairer.flush_all()
+    assert frame.obs is obs and frame.actions == {"expert": None, "learner": None}
+    assert pairer.pending == 0 and pairer.flush_all() == []
+
+
+def test_wait_peers_names_what_is_missing() -> None:
+    state = [[("/sim/frame_ack", ["/a", "/b"])], [("/camera/depth/image", ["/a"])], []]
+    assert missing_peers(state, {"/sim/frame_ack": 2}, {"/camera/depth/image": 1}) == []
+    assert missing_peers(state, {"/sim/frame_ack": 3}, {"/camera/depth/image": 2, "/odom": 1}) == [
+        "1 publisher(s) of /sim/frame_ack",
+        "1 subscriber(s) of /camera/depth/image",
+        "1 subscriber(s) of /odom",
+    ]
+    with pytest.raises(ValueError, match="expected /topic=COUNT"):
+        parse_counts(["sim/frame_ack=2"], "--publishers")
+    with pytest.raises(ValueError, match="COUNT must be an integer"):
+        parse_counts(["/sim/frame_ack=two"], "--publishers")

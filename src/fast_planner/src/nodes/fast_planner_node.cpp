@@ -14,6 +14,14 @@
 // the depth frame and odometry the plan used, the goal, the B-spline, status, timings, episode id and world
 // seed (from sim/status). The dataset is finalised after ros::spin() returns (SIGINT); writer statistics are
 // logged periodically and at exit.
+//
+// Labeller mode (~label_every_frame true; issue 9, docs/imitation_learning.md): the expert does not fly. On
+// every depth frame it updates the map and plans from the vehicle's state at that frame (the newest odometry
+// not after the frame's stamp, moved on at its velocity to the stamp, acceleration zero) to the current goal,
+// publishes the plan on planner/bspline with start_time = the frame's header.stamp exactly (the pairing key
+// of the imitation collector), or an empty Bspline with that start_time when it has no plan, sends nothing to
+// the tracker, and still acknowledges every frame (after publishing). Goals are checked and answered on
+// planner/status as in flight mode; the replanning state machine is not used.
 #include <actionlib/client/simple_action_client.h>
 #include <geometry_msgs/PoseStamped.h>
 #include <nav_msgs/Odometry.h>
@@ -243,6 +251,8 @@ class FastPlannerNode {
         replanner_(cfg_),
         consumer_(pnh.param<std::string>("frame_ack_consumer", "fast_planner")),
         tracker_accept_timeout_s_(pnh.param<double>("tracker_accept_timeout_s", 1.0)),
+        label_every_frame_(pnh.param<bool>("label_every_frame", false)),
+        odom_period_s_(pnh.param<double>("odom_period_s", 0.005)),
         tf_listener_(tf_buffer_) {
     bspline_pub_ = nh_.advertise<quad_msgs::Bspline>("planner/bspline", 10);
     timing_pub_ = nh_.advertise<quad_msgs::PlanTiming>("planner/timing", 10);
@@ -258,9 +268,10 @@ class FastPlannerNode {
     if (cfg_.map.source == MapSource::kGlobal) {
       voxel_sub_ = nh_.subscribe("sim/voxel_map", 1, &FastPlannerNode::OnVoxelMap, this);
     }
-    ROS_INFO("fast_planner: map source %s, max %.1f m/s, %.1f m/s^2, horizon %.1f m",
+    ROS_INFO("fast_planner: map source %s, max %.1f m/s, %.1f m/s^2, horizon %.1f m%s",
              ToString(cfg_.map.source), cfg_.limits.max_vel_mps, cfg_.limits.max_acc_mps2,
-             cfg_.search.horizon_m);
+             cfg_.search.horizon_m,
+             label_every_frame_ ? "; labeller mode (plans every frame, never flies)" : "");
     const std::string out_dir = pnh.param<std::string>("collector_output_dir", "");
     if (!out_dir.empty()) {
       collector_ =
@@ -332,13 +343,22 @@ class FastPlannerNode {
     o.v_world = Eigen::Vector3d(v.x, v.y, v.z);  // twist in the world frame (docs/CONVENTIONS.md)
     o.w_body = Eigen::Vector3d(w.x, w.y, w.z);
     try {
-      Handle(replanner_.OnOdometry(o), msg->header.stamp);
+      if (label_every_frame_) {
+        replanner_.manager().UpdateOdometry(o);  // validates; the plan sets the one it used again
+      } else {
+        Handle(replanner_.OnOdometry(o), msg->header.stamp);
+      }
     } catch (const std::invalid_argument& e) {
       ROS_WARN_THROTTLE(kLogThrottleS, "fast_planner: skipping odometry: %s", e.what());
       return;
     }
     odom_.push_back(o);
     if (odom_.size() > kOdomBuffer) odom_.pop_front();
+    if (pending_depth_ && OdometryCovers(pending_depth_->header.stamp)) {
+      const auto frame = pending_depth_;
+      pending_depth_.reset();
+      HandleDepth(frame);
+    }
   }
 
   void OnInfo(const sensor_msgs::CameraInfo::ConstPtr& msg) {
@@ -395,7 +415,7 @@ class FastPlannerNode {
   // (in lockstep the simulator may be waiting for this node meanwhile, so it must not be built in the
   // constructor).
   void ConnectTracker() {
-    if (!tracker_ && !ros::Time::now().isZero()) {
+    if (!tracker_ && !label_every_frame_ && !ros::Time::now().isZero()) {
       tracker_ = std::make_unique<actionlib::SimpleActionClient<quad_msgs::TrackBsplineAction>>(
           nh_, "tracker/track_bspline", true);
     }
@@ -429,14 +449,39 @@ class FastPlannerNode {
     }
   }
 
+  // Odometry and depth arrive on separate connections, so a frame may overtake the odometry it belongs to. In
+  // lockstep the simulator publishes nothing newer until this frame is acknowledged, so waiting for the
+  // odometry of the frame's control period (newest odometry within one period before the stamp) makes what
+  // every frame is planned from, and so every record, independent of message timing. A newer frame arriving
+  // meanwhile (odometry lost or not lockstepped) releases the waiting one with the odometry there is.
+  bool OdometryCovers(const ros::Time& stamp) const {
+    return !odom_.empty() && odom_.back().stamp_s > stamp.toSec() - odom_period_s_ + 1e-6;
+  }
+
   void OnDepth(const sensor_msgs::Image::ConstPtr& msg) {
+    if (pending_depth_) {
+      const auto waiting = pending_depth_;
+      pending_depth_.reset();
+      HandleDepth(waiting);
+    }
+    if (msg->header.stamp >= episode_start_ && !OdometryCovers(msg->header.stamp)) {
+      pending_depth_ = msg;
+      return;
+    }
+    HandleDepth(msg);
+  }
+
+  void HandleDepth(const sensor_msgs::Image::ConstPtr& msg) {
     ConnectTracker();
     SendPending();
     // A frame of the previous episode arriving after the reset is acknowledged but not used.
+    labelled_ = false;
     if (msg->header.stamp >= episode_start_) {
       ProcessDepth(*msg);
       last_depth_stamp_ = std::max(last_depth_stamp_, msg->header.stamp);
     }
+    // Labeller: every frame gets an answer before its acknowledgement (an empty B-spline = no plan).
+    if (label_every_frame_ && !labelled_) PublishLabel(nullptr, msg->header.stamp);
     // Acknowledge every frame, also one that was skipped: the simulator must not wait on a frame we cannot
     // use.
     quad_msgs::FrameAck ack;
@@ -480,6 +525,11 @@ class FastPlannerNode {
     }
     MapUpdateResult map_update;
     ReplannerOutput out;
+    if (label_every_frame_) {
+      LabelFrame(frame, msg.header.stamp);
+      PublishMapSlice();
+      return;
+    }
     try {
       out = replanner_.OnDepth(frame, &map_update);
     } catch (const std::invalid_argument& e) {
@@ -499,6 +549,21 @@ class FastPlannerNode {
       return;
     }
     const auto& p = msg->pose.position;
+    if (label_every_frame_) {
+      const Eigen::Vector3d g(p.x, p.y, p.z);
+      const std::string why = replanner_.manager().CheckGoal(g);
+      if (!why.empty()) {
+        ROS_WARN("fast_planner: goal (%.2f, %.2f, %.2f) rejected: %s", p.x, p.y, p.z, why.c_str());
+        Status("goal rejected: " + why);
+        return;
+      }
+      label_goal_ = g;
+      char buf[128];
+      std::snprintf(buf, sizeof(buf), "goal accepted: (%.3f, %.3f, %.3f) at %.3f (labeller)", p.x, p.y, p.z,
+                    last_depth_stamp_.toSec());
+      Status(buf);
+      return;
+    }
     ReplannerOutput out;
     // The plan's time is the newest sensor stamp received (the depth frame or odometry it plans from), not
     // the clock: in lockstep this makes a goal's plan independent of when the message arrived.
@@ -540,12 +605,17 @@ class FastPlannerNode {
         if (o.stamp_s >= episode_start_.toSec()) early.push_back(o);
       }
       replanner_.Reset();
+      label_goal_.reset();
       odom_.clear();
       pending_.reset();
       last_depth_stamp_ = ros::Time();
       if (global_points_) replanner_.manager().SetGlobalMap(*global_points_);
       for (const Odometry& o : early) {
-        Handle(replanner_.OnOdometry(o), ros::Time(o.stamp_s));
+        if (label_every_frame_) {
+          replanner_.manager().UpdateOdometry(o);
+        } else {
+          Handle(replanner_.OnOdometry(o), ros::Time(o.stamp_s));
+        }
         odom_.push_back(o);
       }
     }
@@ -567,6 +637,59 @@ class FastPlannerNode {
     replanner_.manager().SetGlobalMap(pts);
     global_points_ = std::move(pts);
     ROS_INFO("fast_planner: global map with %zu occupied voxels", global_points_->size());
+  }
+
+  // Labeller mode: map update, then one plan from the state at the frame's stamp to the goal.
+  void LabelFrame(const std::shared_ptr<DepthFrame>& frame, const ros::Time& stamp) {
+    PlannerManager& m = replanner_.manager();
+    try {
+      last_map_update_ms_ = m.UpdateDepth(frame).total_ms;
+    } catch (const std::invalid_argument& e) {
+      ROS_WARN_THROTTLE(kLogThrottleS, "fast_planner: skipping depth frame: %s", e.what());
+      return;
+    }
+    if (collector_) collector_->SetMapUpdateMs(last_map_update_ms_);
+    if (!label_goal_) return;  // answered with an empty B-spline
+    const double t = stamp.toSec();
+    const Odometry* best = nullptr;
+    for (const auto& o : odom_) {
+      if (o.stamp_s <= t + 1e-9) best = &o;
+    }
+    if (!best) return;
+    m.UpdateOdometry(*best);  // the collector records exactly the odometry this plan starts from
+    PlanRequest req;
+    req.start_p = best->p_world_body + best->v_world * (t - best->stamp_s);
+    req.start_v = best->v_world;
+    req.start_a = Eigen::Vector3d::Zero();
+    req.goal = *label_goal_;
+    req.start_time_s = t;
+    const PlanResult plan = m.Plan(req);
+    PublishTiming(plan, stamp);
+    if (plan.status != PlanStatus::kSuccess || !plan.spline) {
+      ROS_WARN_THROTTLE(kLogThrottleS, "fast_planner: label plan failed: %s", plan.reason.c_str());
+      return;
+    }
+    PublishLabel(&plan, stamp);
+    PublishMarkers(plan);
+  }
+
+  // planner/bspline in labeller mode: the plan with start_time = the frame's stamp, or an empty B-spline.
+  void PublishLabel(const PlanResult* plan, const ros::Time& stamp) {
+    quad_msgs::Bspline b;
+    b.start_time = stamp;
+    if (plan) {
+      b.order = plan->spline->order();
+      b.traj_id = plan->traj_id;
+      b.knots = plan->spline->knots();
+      const Eigen::MatrixXd& q = plan->spline->ctrl_pts();
+      b.pos_pts.reserve(q.rows());
+      for (int i = 0; i < q.rows(); ++i) b.pos_pts.push_back(ToPoint(q.row(i).transpose()));
+    } else {
+      b.order = 3;
+    }
+    b.yaw_dt = 0.0;
+    bspline_pub_.publish(b);
+    labelled_ = true;
   }
 
   void Handle(const ReplannerOutput& out, const ros::Time& stamp) {
@@ -614,7 +737,8 @@ class FastPlannerNode {
     t.header.stamp = stamp;
     t.header.frame_id = "world";
     t.traj_id = plan.traj_id;
-    t.map_update_ms = last_map_update_ms_;
+    // The ESDF computed on demand for this plan (map.esdf_on_demand) is map work too.
+    t.map_update_ms = last_map_update_ms_ + plan.timings.map_prep_ms;
     t.frontend_ms = plan.timings.frontend_ms;
     t.optimization_ms = plan.timings.optimization_ms;
     t.total_ms = plan.timings.total_ms;
@@ -704,6 +828,13 @@ class FastPlannerNode {
   std::string consumer_;
   double tracker_accept_timeout_s_ = 1.0;
   uint64_t tracker_accept_timeouts_ = 0;
+  bool label_every_frame_ = false;
+  // The simulator's odometry period: a depth frame is processed once the odometry of its control period has
+  // been received (see OnDepth).
+  double odom_period_s_ = 0.005;
+  sensor_msgs::Image::ConstPtr pending_depth_;
+  bool labelled_ = false;                      // labeller: this frame's answer was published
+  std::optional<Eigen::Vector3d> label_goal_;  // labeller: the episode's goal
   std::unique_ptr<actionlib::SimpleActionClient<quad_msgs::TrackBsplineAction>> tracker_;
   std::optional<quad_msgs::Bspline> pending_;
   tf2_ros::Buffer tf_buffer_;

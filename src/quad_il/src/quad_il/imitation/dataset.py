@@ -2,19 +2,21 @@
 
 A file `episode_<episode_id:06d>.npz` is written as `<name>.partial`, flushed and fsynced, then renamed; the
 directory is fsynced. A reader therefore sees complete files only; a `.partial` left by a killed collector is
-the torn tail and is reported, never read. Format version 1, arrays (N = records, K = control points, L = K +
-order + 1 knots):
+the torn tail and is reported, never read. Format version 2 (version 1 files are still read), arrays
+(N = records, K = the largest number of control points in the file, L = the largest knot count):
 
 | key | shape, dtype | meaning |
 |---|---|---|
-| format_version | (), int64 | 1 |
+| format_version | (), int64 | 2 |
 | stamp_s | (N,) float64 | observation (depth frame) stamp, s |
+| odom_stamp_s | (N,) float64 | stamp of the state's odometry (NaN: unknown; absent in version 1) |
 | frame_seq, episode_id, round_index | (N,) int64 | lockstep frame counter, episode, round |
 | p_world_body, v_world, goal_world | (N, 3) float64 | state (m, m/s), goal (m), world frame |
 | q_world_body | (N, 4) float64 | attitude quaternion (x, y, z, w) |
 | depth_m | (N, H, W) float32 | depth image in metres as published (absent: `has_depth` = 0) |
 | features | (N, F) float64 | MEGA-DAgger observation features (absent: `has_features` = 0) |
-| label_ctrl, label_knots | (N, K, 3), (N, L) float64 | the label B-spline (world frame) |
+| label_ctrl, label_knots | (N, K, 3), (N, L) float64 | the label B-spline (world frame), zero-padded |
+| label_num_ctrl | (N,) int64 | its control points (knots: label_num_ctrl + label_order + 1) |
 | label_order, label_traj_id | (N,) int64 | its degree and trajectory id |
 | label_start_time_s | (N,) float64 | its start time |
 | contrast_* | as label_*; contrast_mask (N,) bool | EIL's contrast action (zeros where the mask is False) |
@@ -22,7 +24,8 @@ order + 1 knots):
 | source | (N,) unicode | "learner" or the expert's name |
 | deviation_m, score, min_clearance_m | (N,) float64 | gate deviation, MEGA score, clearance (NaN: none) |
 
-All labels (and contrasts) of one file share K and the order.
+Rows may hold splines of different sizes and degrees (the expert's plans vary in length); version 1 files had
+one K and order per file.
 """
 
 from __future__ import annotations
@@ -43,7 +46,8 @@ from quad_il.imitation.types import (
     Record,
 )
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+READABLE_VERSIONS = (1, 2)
 PARTIAL_SUFFIX = ".partial"
 
 _PARTITION_BY_CODE = {v: k for k, v in PARTITION_CODES.items()}
@@ -70,26 +74,26 @@ def _spline_arrays(actions: Sequence[SplineAction | None], prefix: str) -> dict[
     present = [a for a in actions if a is not None]
     if not present:
         return {}
-    k, order = present[0].num_ctrl, present[0].order
-    for a in present:
-        if a.num_ctrl != k or a.order != order:
-            raise ImitationError(
-                f"{prefix} actions of one episode must share K and order: got K={a.num_ctrl}, "
-                f"order={a.order} after K={k}, order={order}"
-            )
+    k = max(a.num_ctrl for a in present)
+    nk = max(a.knots.shape[0] for a in present)
     n = len(actions)
     ctrl = np.zeros((n, k, 3))
-    knots = np.zeros((n, k + order + 1))
+    knots = np.zeros((n, nk))
+    num = np.zeros(n, dtype=np.int64)
+    order = np.zeros(n, dtype=np.int64)
     start = np.zeros(n)
     traj = np.zeros(n, dtype=np.int64)
     for i, a in enumerate(actions):
         if a is None:
             continue
-        ctrl[i], knots[i], start[i], traj[i] = a.ctrl_pts_world, a.knots, a.start_time_s, a.traj_id
+        ctrl[i, : a.num_ctrl] = a.ctrl_pts_world
+        knots[i, : a.knots.shape[0]] = a.knots
+        num[i], order[i], start[i], traj[i] = a.num_ctrl, a.order, a.start_time_s, a.traj_id
     return {
         f"{prefix}_ctrl": ctrl,
         f"{prefix}_knots": knots,
-        f"{prefix}_order": np.full(n, order, dtype=np.int64),
+        f"{prefix}_num_ctrl": num,
+        f"{prefix}_order": order,
         f"{prefix}_start_time_s": start,
         f"{prefix}_traj_id": traj,
     }
@@ -106,6 +110,7 @@ def records_to_arrays(records: Sequence[Record]) -> dict[str, np.ndarray]:
     out: dict[str, np.ndarray] = {
         "format_version": np.array(FORMAT_VERSION, dtype=np.int64),
         "stamp_s": np.array([o.stamp_s for o in obs]),
+        "odom_stamp_s": np.array([o.odom_stamp_s for o in obs]),
         "frame_seq": np.array([o.frame_seq for o in obs], dtype=np.int64),
         "episode_id": np.array([o.episode_id for o in obs], dtype=np.int64),
         "round_index": np.array([r.round_index for r in records], dtype=np.int64),
@@ -166,7 +171,7 @@ def _get(data: np.lib.npyio.NpzFile, path: Path, key: str) -> np.ndarray:
 
 
 def _splines(
-    data: np.lib.npyio.NpzFile, path: Path, prefix: str, mask: np.ndarray
+    data: np.lib.npyio.NpzFile, path: Path, prefix: str, mask: np.ndarray, version: int
 ) -> list[SplineAction | None]:
     if not mask.any():
         return [None] * mask.shape[0]
@@ -175,13 +180,23 @@ def _splines(
     order = _get(data, path, f"{prefix}_order")
     start = _get(data, path, f"{prefix}_start_time_s")
     traj = _get(data, path, f"{prefix}_traj_id")
+    if version >= 2:
+        num = _get(data, path, f"{prefix}_num_ctrl")
+    else:
+        num = np.full(mask.shape[0], ctrl.shape[1], dtype=np.int64)
     out: list[SplineAction | None] = []
     for i in range(mask.shape[0]):
         if not mask[i]:
             out.append(None)
             continue
+        k, p = int(num[i]), int(order[i])
+        if not 0 < k <= ctrl.shape[1] or k + p + 1 > knots.shape[1]:
+            raise DatasetError(
+                f"{path}: record {i}: {prefix}_num_ctrl {k} with order {p} does not fit the arrays "
+                f"({ctrl.shape[1]} control points, {knots.shape[1]} knots)"
+            )
         try:
-            out.append(SplineAction(ctrl[i], knots[i], int(order[i]), float(start[i]), int(traj[i])))
+            out.append(SplineAction(ctrl[i, :k], knots[i, : k + p + 1], p, float(start[i]), int(traj[i])))
         except ValueError as e:
             raise DatasetError(f"{path}: record {i}: bad {prefix} B-spline: {e}") from None
     return out
@@ -199,8 +214,10 @@ def read_episode(path: str | Path) -> list[Record]:
         raise DatasetError(f"{p}: not a readable .npz file: {e}") from None
     with data:
         version = int(_get(data, p, "format_version"))
-        if version != FORMAT_VERSION:
-            raise DatasetError(f"{p}: format_version {version}, this reader understands {FORMAT_VERSION}")
+        if version not in READABLE_VERSIONS:
+            raise DatasetError(
+                f"{p}: format_version {version}, this reader understands {list(READABLE_VERSIONS)}"
+            )
         stamp = _get(data, p, "stamp_s")
         n = stamp.shape[0]
         fields = {
@@ -227,8 +244,9 @@ def read_episode(path: str | Path) -> list[Record]:
                 raise DatasetError(f"{p}: field '{k}' has {v.shape[0]} rows, stamp_s has {n}")
         depth = _get(data, p, "depth_m") if int(_get(data, p, "has_depth")) else None
         feats = _get(data, p, "features") if int(_get(data, p, "has_features")) else None
-        labels = _splines(data, p, "label", np.ones(n, dtype=bool))
-        contrasts = _splines(data, p, "contrast", fields["contrast_mask"].astype(bool))
+        odom_stamp = _get(data, p, "odom_stamp_s") if version >= 2 else np.full(n, np.nan)
+        labels = _splines(data, p, "label", np.ones(n, dtype=bool), version)
+        contrasts = _splines(data, p, "contrast", fields["contrast_mask"].astype(bool), version)
         records: list[Record] = []
         for i in range(n):
             try:
@@ -242,6 +260,7 @@ def read_episode(path: str | Path) -> list[Record]:
                     goal_world=fields["goal_world"][i],
                     depth_m=None if depth is None else depth[i],
                     features=None if feats is None else feats[i],
+                    odom_stamp_s=float(odom_stamp[i]),
                 )
                 partition = _PARTITION_BY_CODE[int(fields["partition"][i])]
                 controller = _CONTROLLER_BY_CODE[int(fields["controller"][i])]

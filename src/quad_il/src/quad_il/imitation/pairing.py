@@ -86,6 +86,18 @@ class StampPairer:
             out.append(PairedFrame(slot.obs, actions))
         return out
 
+    def flush_all(self) -> list[PairedFrame]:
+        """Complete every held frame that has its observation (with None for missing plans); drop the rest."""
+        if not self._slots:
+            return []
+        return self.flush_before((max(self._slots) + 1) * 1e-9)
+
+    def waiting_for(self, source: str, stamp_s: float) -> bool:
+        """Whether the frame at stamp_s is held with its observation but without `source`'s plan (the rospy
+        collector completes it with None once the source has acknowledged the frame without a plan)."""
+        slot = self._slots.get(stamp_key(stamp_s))
+        return slot is not None and slot.obs is not None and source not in slot.actions
+
     @property
     def pending(self) -> int:
         return len(self._slots)

@@ -72,12 +72,14 @@ class Observation:
     goal_world: FloatArray
     depth_m: NDArray[np.float32] | None = None  # (H, W) metres, as published; None in scripted tests
     features: FloatArray | None = None  # observation descriptor for MEGA-DAgger's similarity matching
+    odom_stamp_s: float = float("nan")  # stamp of the odometry the state came from (NaN: unknown)
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.stamp_s):
             raise ImitationError(f"stamp_s must be finite, got {self.stamp_s}")
         object.__setattr__(self, "stamp_s", float(self.stamp_s))
         object.__setattr__(self, "frame_seq", int(self.frame_seq))
+        object.__setattr__(self, "odom_stamp_s", float(self.odom_stamp_s))
         object.__setattr__(self, "episode_id", int(self.episode_id))
         object.__setattr__(self, "p_world_body", _vec("p_world_body", self.p_world_body, 3))
         object.__setattr__(self, "v_world", _vec("v_world", self.v_world, 3))

@@ -1,0 +1,74 @@
+"""Episode files -> the trainer's npz contract (quad_il.imitation.convert)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_imitation_dataset import make_records
+
+from quad_il.data.bspline import evaluate, uniform_knots
+from quad_il.imitation import Partition, SplineAction
+from quad_il.imitation.convert import convert, parse_partitions, records_to_npz_arrays
+from quad_il.imitation.dataset import DatasetError, write_episode
+from quad_il.learning.dataset import validate_arrays
+from quad_il.learning.preprocessing import world_to_local_points, yaw_from_quaternion
+
+
+def test_a_uniform_cubic_label_on_the_target_grid_is_reproduced_exactly() -> None:
+    # A label that already is a uniform cubic with K = 10 over 2 s starting at the frame: the fit returns it.
+    rec = make_records(1)[0]
+    ctrl = np.random.default_rng(3).normal(size=(10, 3))
+    label = SplineAction.uniform(ctrl, 2.0 / 7, start_time_s=rec.obs.stamp_s)
+    rec = dataclasses.replace(rec, label=label)
+    a = records_to_npz_arrays([rec])
+    np.testing.assert_allclose(a.bspline_ctrl_world[0], ctrl, atol=1e-5)
+    assert a.fit_rms_m[0] < 1e-6
+    # The npz spline evaluates like the label over the horizon.
+    u = np.linspace(0.0, 2.0, 9)
+    y = evaluate(uniform_knots(10, 3, 2.0 / 7), a.bspline_ctrl_world[0].astype(np.float64), 3, u)
+    np.testing.assert_allclose(y, label.positions(rec.obs.stamp_s + u), atol=1e-5)
+
+
+def test_converted_arrays_pass_the_trainers_validation_and_frames(tmp_path: Path) -> None:
+    recs = make_records(8)
+    recs = [
+        dataclasses.replace(r, obs=dataclasses.replace(r.obs, odom_stamp_s=r.obs.stamp_s - 0.002))
+        for r in recs
+    ]
+    write_episode(tmp_path / "r0", 7, recs[:4])
+    write_episode(tmp_path / "r1", 8, [dataclasses.replace(r, round_index=3) for r in recs[4:]])
+    out, n, skipped = convert(
+        [tmp_path / "r0", tmp_path / "r1"],
+        tmp_path / "d.npz",
+        partitions=parse_partitions("demo,intervention,good,bad"),
+    )
+    assert n == 8 and skipped == {}
+    with np.load(out) as data:
+        arrays = {k: data[k] for k in data.files}
+    assert validate_arrays(arrays, "d.npz")[:2] == (8, 10)
+    assert arrays["depth_m"].dtype == np.float16
+    np.testing.assert_array_equal(arrays["world_seed"], [2, 2, 2, 2, 3, 3, 3, 3])  # (round, episode) keys
+    np.testing.assert_allclose(arrays["depth_stamp_s"] - arrays["odom_stamp_s"], 0.002, atol=1e-9)
+    import torch
+
+    local = world_to_local_points(
+        torch.from_numpy(arrays["bspline_ctrl_world"]).double(),
+        torch.from_numpy(arrays["p_world_body"]).double(),
+        yaw_from_quaternion(torch.from_numpy(arrays["q_world_body"]).double()),
+    )
+    np.testing.assert_allclose(local.numpy(), arrays["bspline_ctrl_local"], atol=1e-4)
+
+
+def test_only_the_wanted_partitions_are_kept(tmp_path: Path) -> None:
+    write_episode(tmp_path, 1, make_records(8))  # partitions cycle demo, intervention, good, bad
+    _, n, skipped = convert([tmp_path], tmp_path / "x.npz")
+    assert n == 4 and skipped == {"good": 2, "bad": 2}
+    with pytest.raises(DatasetError, match="no records to convert"):
+        convert([tmp_path], tmp_path / "y.npz", partitions=(Partition.GOOD,) * 0)
+    with pytest.raises(DatasetError, match="--partitions 'demo,best'"):
+        parse_partitions("demo,best")
+    with pytest.raises(DatasetError, match="records without depth"):
+        records_to_npz_arrays(make_records(2, depth=False))
