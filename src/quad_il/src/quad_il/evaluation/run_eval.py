@@ -312,7 +312,7 @@ def main(argv: list[str] | None = None) -> int:
         if any(c != "expert" for c in controllers) and not args.report_only:
             if not args.policy or not Path(args.policy).is_file():
                 raise EvalError(f"--policy must name an exported policy file, got {args.policy!r}")
-        out = Path(args.out)
+        out = Path(args.out).resolve()  # the nodes run in ROS_HOME: every path handed to them is absolute
         out.mkdir(parents=True, exist_ok=True)
         sim_base = yaml.safe_load(Path(args.sim_config).read_text())
         gen = sim_base["world"]["generator"]
