@@ -172,7 +172,9 @@ class InferFlight(unittest.TestCase):
         counts = dict(zip(last.count_names, last.count_values, strict=True))
         events = {k: counts.pop(k) for k in EVENTS if k in counts}
         self.assertEqual(counts, dict(tally))
-        self.assertLessEqual(events.get("tracker_not_connected", 0), 15, events)
+        # How many frames pass before actionlib confirms the connection depends on the load; what must hold
+        # is that it was confirmed: most decisions were sent to the tracker.
+        self.assertLess(events.get("tracker_not_connected", 0), len(decided) / 2, events)
         # Each decision's trajectory was published: world frame, uniform cubic, started at the frame's stamp.
         k = int(meta["output"]["num_ctrl_pts"])
         for d in decided:

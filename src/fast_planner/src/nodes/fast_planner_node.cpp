@@ -464,7 +464,9 @@ class FastPlannerNode {
       pending_depth_.reset();
       HandleDepth(waiting);
     }
-    if (msg->header.stamp >= episode_start_ && !OdometryCovers(msg->header.stamp)) {
+    // Only a frame that can be used waits (a malformed one is skipped with its log line at once).
+    if (msg->header.stamp >= episode_start_ && msg->encoding == sensor_msgs::image_encodings::TYPE_32FC1 &&
+        !OdometryCovers(msg->header.stamp)) {
       pending_depth_ = msg;
       return;
     }
