@@ -5,8 +5,9 @@ into one dataset collection directory (issue 9, Scale; docs/collect.md "Parallel
         [--launch-arg key:=value ...] [--timeout-s 7200]
 
 The seeds are dealt round-robin to the workers (worker k flies seeds[k::N]) and the episodes split as evenly
-as possible, so the episodes flown do not depend on N except for their order. Worker k writes the
-ordinary dataset OUT/worker_k (format: docs/data_format.md); OUT/collection.yaml lists the workers, their
+as possible. The worlds flown do not depend on N; the start/goal pairs do (collect.launch draws them from
+(world seed, the worker's episode index)), so runs with different N are different datasets. Worker k writes
+the ordinary dataset OUT/worker_k (format: docs/data_format.md); OUT/collection.yaml lists the workers, their
 seeds, outcome counts, records and wall times, and the totals. The training scripts take OUT itself as a
 dataset path (quad_il.learning.dataset.expand_paths reads every worker dataset under it).
 
