@@ -10,7 +10,8 @@
 # interrupted demo continues where it stopped (DEMO_FRESH=1 starts over). Larger settings by variables:
 #   DEMO_TRAIN_EPISODES (60) DEMO_TEST_EPISODES (12) DEMO_EPOCHS (12) DEMO_EVAL_EPISODES (5) DEMO_WORKERS (2)
 #   DEMO_TRAIN_ARGS (train_on_cpp_datasets.py arguments; default: state and output in the vehicle's local frame,
-#   which generalised far better than the thesis's world frame, docs/RESULTS.md)
+#   the configuration of the trained policy in docs/RESULTS.md; on synthetic data it reached a far lower
+#   validation loss than the thesis's world frame, docs/scaling.md)
 set -euo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$ROOT"
