@@ -100,6 +100,31 @@ def parse_seeds(text: str) -> list[int]:
     return seeds
 
 
+def parse_seed_ranges(text: str, distinct: bool = False) -> list[int]:
+    """'100-103,110' -> [100, 101, 102, 103, 110] (ranges and plain lists); errors (ValueError) name the part.
+    distinct: a seed listed twice is an error."""
+    seeds: list[int] = []
+    for part in str(text).replace(" ", "").split(","):
+        if not part:
+            continue
+        if "-" in part:
+            a, b = part.split("-", 1)
+            try:
+                lo, hi = int(a), int(b)
+            except ValueError:
+                raise ValueError(f"seeds '{text}': '{part}' is not a range like 100-199") from None
+            if hi < lo:
+                raise ValueError(f"seeds '{text}': bad seed range '{part}' is empty (end before start)")
+            seeds.extend(range(lo, hi + 1))
+        else:
+            seeds.extend(parse_seeds(part))
+    if not seeds:
+        raise ValueError(f"seeds '{text}': no seed given")
+    if distinct and len(set(seeds)) != len(seeds):
+        raise ValueError(f"seeds '{text}': a seed is listed twice (workers must fly distinct worlds)")
+    return seeds
+
+
 def manager_config(path: str | os.PathLike, params: dict) -> CollectConfig:
     """The episode manager's config: the YAML at `path` with its node parameters (launch arguments) applied.
 

@@ -30,8 +30,9 @@ from pathlib import Path
 
 import yaml
 
-from quad_il.collection.episodes import parse_seeds
-from quad_il.collection.launch_run import collect_command, free_port
+from quad_il.collection import episodes
+from quad_il.collection.launch_run import collect_command
+from quad_il.tools.ports import free_port
 
 COLLECTION_FILE = "collection.yaml"
 
@@ -41,30 +42,11 @@ class ParallelError(RuntimeError):
 
 
 def parse_seed_ranges(text: str) -> list[int]:
-    """'100-103,110' -> [100, 101, 102, 103, 110]; plain lists as collect.launch's seeds."""
-    seeds: list[int] = []
-    for part in text.replace(" ", "").split(","):
-        if not part:
-            continue
-        if "-" in part:
-            a, b = part.split("-", 1)
-            try:
-                lo, hi = int(a), int(b)
-            except ValueError as exc:
-                raise ParallelError(f"seeds '{text}': '{part}' is not a range like 100-199") from exc
-            if hi < lo:
-                raise ParallelError(f"seeds '{text}': range '{part}' is empty (end before start)")
-            seeds.extend(range(lo, hi + 1))
-        else:
-            try:
-                seeds.extend(parse_seeds(part))
-            except ValueError as exc:
-                raise ParallelError(f"seeds '{text}': {exc}") from exc
-    if not seeds:
-        raise ParallelError(f"seeds '{text}': no seed given")
-    if len(set(seeds)) != len(seeds):
-        raise ParallelError(f"seeds '{text}': a seed is listed twice (workers must fly distinct worlds)")
-    return seeds
+    """'100-103,110' -> [100, 101, 102, 103, 110]; every seed at most once (workers fly distinct worlds)."""
+    try:
+        return episodes.parse_seed_ranges(text, distinct=True)
+    except ValueError as exc:
+        raise ParallelError(str(exc)) from None
 
 
 @dataclass

@@ -22,14 +22,13 @@ import copy
 import math
 import os
 import signal
-import socket
 import subprocess
 import sys
 from pathlib import Path
 
 import yaml
 
-from quad_il.collection.episodes import StartGoalConfig
+from quad_il.collection.episodes import StartGoalConfig, parse_seed_ranges
 from quad_il.evaluation.episodes import (
     GROUND_Z_M,
     plan_eval_episodes,
@@ -37,6 +36,7 @@ from quad_il.evaluation.episodes import (
     read_results,
     write_episodes,
 )
+from quad_il.tools.ports import free_port
 
 ROOT = Path(os.environ.get("QUAD_IL_ROOT") or Path(__file__).resolve().parents[5])
 CONTROLLERS = ("expert", "py", "cpp")
@@ -55,20 +55,10 @@ class EvalError(RuntimeError):
 
 def parse_seeds(text: str) -> list[int]:
     """'9000-9003,9010' -> [9000, 9001, 9002, 9003, 9010]."""
-    seeds: list[int] = []
-    for part in text.replace(" ", "").split(","):
-        if not part:
-            continue
-        if "-" in part:
-            lo, hi = (int(x) for x in part.split("-", 1))
-            if hi < lo:
-                raise EvalError(f"bad seed range {part!r}")
-            seeds.extend(range(lo, hi + 1))
-        else:
-            seeds.append(int(part))
-    if not seeds:
-        raise EvalError("no world seeds given")
-    return seeds
+    try:
+        return parse_seed_ranges(text)
+    except ValueError as exc:
+        raise EvalError(str(exc)) from None
 
 
 def eval_sim_config(base_path: Path, controller: str, density: float | None) -> dict:
@@ -99,12 +89,6 @@ def node_available(controller: str) -> str:
     return f"{pkg}/{exe} is not built (not in CMAKE_PREFIX_PATH)"
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _stop_group(proc: subprocess.Popen, timeout_s: float = 20.0) -> None:
     """SIGINT to the process group we started (roslaunch and its children), then SIGKILL if needed."""
     if proc.poll() is not None:
@@ -120,7 +104,7 @@ def _stop_group(proc: subprocess.Popen, timeout_s: float = 20.0) -> None:
 def _launch(
     args: argparse.Namespace, controller: str, out: Path, sim_cfg: Path, tag: str
 ) -> tuple[subprocess.Popen, dict[str, str]]:
-    port = _free_port()
+    port = free_port()
     env = {**os.environ, "ROS_MASTER_URI": f"http://127.0.0.1:{port}", "ROS_HOME": str(out / "ros_home")}
     cmd = [
         "roslaunch",

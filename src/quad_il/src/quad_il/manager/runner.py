@@ -40,6 +40,7 @@ from quad_il.manager.supervisor import (
     reap_zombies,
     sweep_descendants,
 )
+from quad_il.tools.ports import free_port
 
 log = logging.getLogger("quad_il.manager")
 
@@ -85,12 +86,6 @@ class StopRequest:
 
     def exit_code(self) -> int:
         return 128 + int(self.signum or 0)
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def port_accepts(port: int) -> bool:

@@ -27,7 +27,6 @@ import copy
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -35,6 +34,8 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+
+from quad_il.tools.ports import free_port
 
 ROOT = Path(os.environ.get("QUAD_IL_ROOT") or Path(__file__).resolve().parents[5])
 DEFAULT_RVIZ = ROOT / "config" / "rviz" / "sim.rviz"
@@ -97,12 +98,6 @@ def rviz_config(
         "Hide Right Dock": True,
     }
     return cfg
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _start_xvfb(size: tuple[int, int]) -> tuple[subprocess.Popen, str]:
@@ -225,7 +220,7 @@ def take_snapshots(args: argparse.Namespace) -> list[Path]:
     if args.bag:
         if not Path(args.bag).is_file():
             raise SnapshotError(f"bag not found: {args.bag}")
-        env["ROS_MASTER_URI"] = f"http://127.0.0.1:{_free_port()}"
+        env["ROS_MASTER_URI"] = f"http://127.0.0.1:{free_port()}"
         os.environ["ROS_MASTER_URI"] = env["ROS_MASTER_URI"]
     xvfb = None
     paths: list[Path] = []
