@@ -72,3 +72,17 @@ def test_only_the_wanted_partitions_are_kept(tmp_path: Path) -> None:
         parse_partitions("demo,best")
     with pytest.raises(DatasetError, match="records without depth"):
         records_to_npz_arrays(make_records(2, depth=False))
+
+
+def test_stride_keeps_every_nth_wanted_record_of_each_episode(tmp_path: Path) -> None:
+    recs = make_records(8)  # partitions cycle demo, intervention, good, bad: 4 wanted per episode
+    write_episode(tmp_path, 1, recs)
+    write_episode(tmp_path, 2, recs)
+    _, n, skipped = convert([tmp_path], tmp_path / "s.npz", stride=3)
+    # Wanted records per episode: indices 0, 1, 4, 5 -> the 1st and 4th are kept (0 and 5).
+    assert n == 4 and skipped == {"good": 4, "bad": 4, "stride": 4}
+    with np.load(tmp_path / "s.npz") as data:
+        seqs = data["record_seq"].tolist()
+    assert seqs == [recs[0].obs.frame_seq, recs[5].obs.frame_seq] * 2
+    with pytest.raises(DatasetError, match="--stride must be >= 1, got 0"):
+        convert([tmp_path], tmp_path / "z.npz", stride=0)

@@ -176,3 +176,17 @@ def test_the_evaluation_simulator_config_is_lockstepped_with_the_controller(tmp_
     # Every key the simulator reads is still there (the file is the base config with values changed).
     base = yaml.safe_load((ROOT / "config" / "sim.yaml").read_text())
     assert set(cfg) == set(base)
+
+
+def test_bad_policy_and_policy_config_paths_are_named(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from quad_il.evaluation.run_eval import main
+
+    policy = tmp_path / "policy.ts"
+    policy.write_bytes(b"x")
+    base = ["--controllers", "cpp", "--out", str(tmp_path / "out"), "--episodes", "1"]
+    assert main([*base, "--policy", str(tmp_path / "none.ts")]) == 1
+    assert "--policy must name an exported policy file" in capsys.readouterr().err
+    assert main([*base, "--policy", str(policy), "--policy-config", str(tmp_path / "nope.yaml")]) == 1
+    assert f"--policy-config: no such file '{tmp_path / 'nope.yaml'}'" in capsys.readouterr().err

@@ -19,6 +19,7 @@ from quad_il.learning.preprocessing import (
     DepthPreprocessor,
     OutputCodec,
     StateEncoder,
+    constant_velocity_prior,
     local_to_world_points,
     polynomial_maps,
     uniform_cubic_basis,
@@ -336,10 +337,81 @@ def test_polynomial_degree_is_validated() -> None:
         uniform_cubic_basis(3, 10)
 
 
+# ----------------------------------------------------------------------------------- constant-velocity prior
+@pytest.mark.parametrize("frame", ["world", "local"])
+@pytest.mark.parametrize("output", ["bspline", "polynomial"])
+def test_constant_velocity_prior_decodes_to_the_straight_line_p_plus_t_v(frame: str, output: str) -> None:
+    k, horizon = 10, 2.0
+    gen = torch.Generator().manual_seed(3)
+    b = 4
+    p = torch.randn(b, 3, generator=gen) * 5
+    v = torch.randn(b, 3, generator=gen) * 2
+    q = torch.nn.functional.normalize(torch.randn(b, 4, generator=gen), dim=1)
+    goal = torch.randn(b, 3, generator=gen) * 5
+    local = frame == "local"
+    enc = StateEncoder(local, 10.0, 3.0)
+    m = constant_velocity_prior(k, horizon, local, output == "polynomial", 5, 10.0, 3.0)
+    codec = OutputCodec(k, local, output == "polynomial", 5)
+    assert m.shape == (codec.out_dim, 13)
+    ctrl = codec.decode(enc(p, v, q, goal) @ m.t(), p, q).double()  # (B, K, 3) world
+    s = 8 * (k - 3) + 1
+    t = torch.linspace(0.0, horizon, s, dtype=torch.float64)
+    samples = torch.einsum("sk,bkc->bsc", uniform_cubic_basis(k, s), ctrl)
+    expected = p.double()[:, None, :] + t[None, :, None] * v.double()[:, None, :]
+    torch.testing.assert_close(samples, expected, atol=2e-5, rtol=0)
+
+
+def test_policy_with_prior_and_a_zero_head_flies_on_at_constant_velocity() -> None:
+    torch.manual_seed(0)
+    cfg = ModelConfig(
+        input_height=32,
+        input_width=32,
+        state_frame="local",
+        output_frame="local",
+        output_prior="constant_velocity",
+    )
+    policy = build_policy(cfg, 10, 2.0).eval()
+    with torch.no_grad():
+        policy.net.head.weight.zero_()
+        policy.net.head.bias.zero_()
+        p, v = torch.tensor([[1.0, 2.0, 1.5]]), torch.tensor([[2.0, -1.0, 0.5]])
+        out = policy(torch.rand(1, 32, 32) * 5, p, v, yaw_quat(0.7), torch.tensor([[9.0, 9.0, 1.0]]))
+    dt = 2.0 / 7
+    expected = torch.stack([p[0] + (i - 1) * dt * v[0] for i in range(10)])
+    torch.testing.assert_close(out[0], expected, atol=1e-5, rtol=0)
+    # Without the prior the same zero head outputs the vehicle's own position for every point.
+    plain = build_policy(
+        ModelConfig(input_height=32, input_width=32, state_frame="local", output_frame="local"), 10, 2.0
+    )
+    assert not plain.net.prior.any()
+
+
+def test_prior_needs_matching_state_and_output_frames() -> None:
+    with pytest.raises(
+        ValueError, match="model.output_prior: constant_velocity needs state_frame == output_frame"
+    ):
+        ModelConfig(state_frame="world", output_frame="local", output_prior="constant_velocity")
+    with pytest.raises(ValueError, match="output_prior"):
+        ModelConfig(output_prior="linear")
+
+
+def test_prior_is_not_in_the_state_dict_so_older_checkpoints_load() -> None:
+    cfg = ModelConfig(input_height=32, input_width=32, state_frame="local", output_frame="local")
+    old = build_policy(cfg, 10, 2.0).state_dict()
+    assert not any(key.endswith("prior") for key in old)
+    new = build_policy(cfg.model_copy(update={"output_prior": "constant_velocity"}), 10, 2.0)
+    new.load_state_dict(old)  # strict: the same keys
+    assert new.net.prior.abs().sum() > 0
+
+
 # ------------------------------------------------------------------------------------------------ TorchScript
 @pytest.mark.parametrize(
     "kw",
-    [{}, {"state_frame": "local", "output_frame": "local", "output": "polynomial", "poly_degree": 4}],
+    [
+        {},
+        {"state_frame": "local", "output_frame": "local", "output": "polynomial", "poly_degree": 4},
+        {"state_frame": "local", "output_frame": "local", "output_prior": "constant_velocity"},
+    ],
 )
 def test_torchscript_export_equals_eager_policy(tmp_path: Path, kw: dict[str, object]) -> None:
     torch.manual_seed(2)

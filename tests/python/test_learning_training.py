@@ -133,6 +133,29 @@ def test_resume_continues_the_same_curve(dataset: Path, tmp_path: Path) -> None:
     assert info["resumptions"][0]["from_epoch"] == 1
 
 
+def test_init_weights_starts_from_a_checkpoint_and_rejects_another_model(
+    dataset: Path, tmp_path: Path
+) -> None:
+    base = Trainer(tiny_config(dataset, tmp_path, "base", "optim.epochs=1")).fit()
+    ckpt = base.run_dir / "checkpoints" / "last.pt"
+    trained = torch.load(ckpt, weights_only=False)["model"]
+    tuned = Trainer(
+        tiny_config(dataset, tmp_path, "tuned", "optim.epochs=1", f"run.init_weights={str(ckpt)!r}")
+    )
+    start = tuned.policy.state_dict()
+    assert all(torch.equal(start[k], trained[k]) for k in trained)  # starts where the checkpoint ended
+    fresh = Trainer(tiny_config(dataset, tmp_path, "fresh", "optim.epochs=1")).policy.state_dict()
+    assert not all(torch.equal(fresh[k], trained[k]) for k in trained)
+    tuned.fit()
+    assert loss_rows(tuned.run_dir)[0][3] != loss_rows(base.run_dir)[0][3]
+    with pytest.raises(ValueError, match=r"run.init_weights: .*last.pt does not fit this model"):
+        Trainer(
+            tiny_config(dataset, tmp_path, "other", "model.depth_mlp=[16]", f"run.init_weights={str(ckpt)!r}")
+        )
+    with pytest.raises(FileNotFoundError, match="run.init_weights: no such checkpoint file"):
+        Trainer(tiny_config(dataset, tmp_path, "missing", f"run.init_weights={str(tmp_path / 'no.pt')!r}"))
+
+
 def test_resume_refuses_a_changed_configuration_and_reuse_needs_resume(dataset: Path, tmp_path: Path) -> None:
     Trainer(tiny_config(dataset, tmp_path, "r", "optim.epochs=1")).fit()
     with pytest.raises(ConfigError, match=r"optim.lr: 0.001 -> 0.01"):

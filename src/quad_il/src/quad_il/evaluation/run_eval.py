@@ -24,6 +24,7 @@ import os
 import signal
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import yaml
@@ -118,6 +119,8 @@ def _launch(
     ]
     if controller != "expert":
         cmd.append(f"policy:={Path(args.policy).resolve()}")
+        if args.policy_config:
+            cmd.append(f"policy_config:={Path(args.policy_config).resolve()}")
     with open(out / "logs" / f"{controller}_{tag}_launch.log", "w") as log:
         proc = subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
     return proc, env
@@ -269,6 +272,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--controllers", default=",".join(CONTROLLERS))
     ap.add_argument("--out", default=str(ROOT / "results" / "eval"))
     ap.add_argument("--sim-config", default=str(ROOT / "config" / "sim.yaml"))
+    ap.add_argument(
+        "--policy-config", default="", help="policy node config for py and cpp (default: config/policy.yaml)"
+    )
     ap.add_argument("--episode-timeout-s", type=float, default=60.0, help="sim time per episode")
     ap.add_argument("--wall-timeout-s", type=float, default=7200.0, help="wall time per controller")
     ap.add_argument("--min-distance-m", type=float, default=20.0)
@@ -288,6 +294,18 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     from quad_il.evaluation.report import write_report
 
+    # SIGTERM unwinds like Ctrl-C: the finally blocks stop the launches we started (in their own sessions).
+    def _on_sigterm(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        return _run(args, write_report)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _run(args: argparse.Namespace, write_report: Callable[..., Path]) -> int:
     try:
         controllers = [c.strip() for c in args.controllers.split(",") if c.strip()]
         bad = [c for c in controllers if c not in CONTROLLERS]
@@ -296,6 +314,8 @@ def main(argv: list[str] | None = None) -> int:
         if any(c != "expert" for c in controllers) and not args.report_only:
             if not args.policy or not Path(args.policy).is_file():
                 raise EvalError(f"--policy must name an exported policy file, got {args.policy!r}")
+            if args.policy_config and not Path(args.policy_config).is_file():
+                raise EvalError(f"--policy-config: no such file {args.policy_config!r}")
         out = Path(args.out).resolve()  # the nodes run in ROS_HOME: every path handed to them is absolute
         out.mkdir(parents=True, exist_ok=True)
         sim_base = yaml.safe_load(Path(args.sim_config).read_text())
@@ -322,6 +342,9 @@ def main(argv: list[str] | None = None) -> int:
     except (EvalError, OSError, ValueError, subprocess.TimeoutExpired) as e:
         print(f"eval: {e}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        print("eval: interrupted; the launches were stopped", file=sys.stderr)
+        return 130
     print(f"[eval] report: {report}", file=sys.stderr)
     return 0
 

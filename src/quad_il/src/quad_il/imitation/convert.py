@@ -2,9 +2,9 @@
 training step for imitation_learning_manager.py.
 
     python -m quad_il.imitation.convert --data DIR[,DIR...] --out dataset.npz [--num-ctrl-pts 10]
-        [--horizon-s 2.0] [--partitions demo,intervention]
+        [--horizon-s 2.0] [--partitions demo,intervention] [--stride N]
     python -m quad_il.imitation.convert train --data-dirs DIR[,DIR...] --checkpoint-dir CKPT
-        --config config/train.yaml [--set key=value ...] [--policy-file policy.ts]
+        --config config/train.yaml [--set key=value ...] [--policy-file policy.ts] [--extra-data DATASET ...]
 
 The trainer (training_only/train_on_cpp_datasets.py, quad_il.learning.dataset) reads `.npz` files of the C++
 collector's postprocessing (quad_il.data.postprocess: K control points of a uniform cubic B-spline over
@@ -64,9 +64,15 @@ def parse_partitions(text: str) -> tuple[Partition, ...]:
 
 
 def collect_records(
-    dirs: Sequence[str | Path], partitions: Sequence[Partition] = DEFAULT_PARTITIONS
+    dirs: Sequence[str | Path], partitions: Sequence[Partition] = DEFAULT_PARTITIONS, stride: int = 1
 ) -> tuple[list[Record], dict[str, int]]:
-    """Every record of the complete episode files in `dirs` whose partition is wanted; counts of the rest."""
+    """Every record of the complete episode files in `dirs` whose partition is wanted; counts of the rest.
+
+    stride N keeps every N-th wanted record of each episode (the first included): the collector records every
+    lockstep frame (30 Hz), whose neighbours are nearly identical; the C++ collector's BC data is ~2 Hz.
+    """
+    if stride < 1:
+        raise DatasetError(f"--stride must be >= 1, got {stride}")
     records: list[Record] = []
     skipped: dict[str, int] = {}
     for d in dirs:
@@ -74,11 +80,16 @@ def collect_records(
         if partial:
             print(f"convert: {d}: ignoring {len(partial)} incomplete .partial file(s)", file=sys.stderr)
         for f in files:
+            wanted = 0
             for r in read_episode(f):
-                if r.partition in partitions:
+                if r.partition not in partitions:
+                    skipped[r.partition.value] = skipped.get(r.partition.value, 0) + 1
+                    continue
+                if wanted % stride == 0:
                     records.append(r)
                 else:
-                    skipped[r.partition.value] = skipped.get(r.partition.value, 0) + 1
+                    skipped["stride"] = skipped.get("stride", 0) + 1
+                wanted += 1
     return records, skipped
 
 
@@ -138,8 +149,9 @@ def convert(
     num_ctrl_pts: int = 10,
     horizon_s: float = 2.0,
     partitions: Sequence[Partition] = DEFAULT_PARTITIONS,
+    stride: int = 1,
 ) -> tuple[Path, int, dict[str, int]]:
-    records, skipped = collect_records(dirs, partitions)
+    records, skipped = collect_records(dirs, partitions, stride)
     arrays = records_to_npz_arrays(records, num_ctrl_pts, horizon_s)
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -155,12 +167,19 @@ def train_round(args: argparse.Namespace) -> int:
     ckpt.mkdir(parents=True, exist_ok=True)
     dirs = [d for d in args.data_dirs.split(",") if d]
     npz, n, skipped = convert(
-        dirs, ckpt / "dataset.npz", args.num_ctrl_pts, args.horizon_s, parse_partitions(args.partitions)
+        dirs,
+        ckpt / "dataset.npz",
+        args.num_ctrl_pts,
+        args.horizon_s,
+        parse_partitions(args.partitions),
+        args.stride,
     )
     print(f"convert: {n} records from {len(dirs)} round(s) -> {npz}; skipped {skipped}", file=sys.stderr)
     root = Path(os.environ.get("QUAD_IL_ROOT") or Path(__file__).resolve().parents[5])
     trainer = root / "training_only" / "train_on_cpp_datasets.py"
     cmd = [sys.executable, str(trainer), "--data", str(npz), "--out", str(ckpt), "--name", "train"]
+    for extra in args.extra_data:  # e.g. the behaviour-cloning dataset every round aggregates with
+        cmd += ["--data", extra]
     for c in args.config:
         cmd += ["--config", c]
     for kv in args.set:
@@ -188,6 +207,13 @@ def main(argv: list[str] | None = None) -> int:
         ap.add_argument("--num-ctrl-pts", type=int, default=10)
         ap.add_argument("--horizon-s", type=float, default=2.0)
         ap.add_argument("--partitions", default="demo,intervention")
+        ap.add_argument("--stride", type=int, default=1, help="keep every N-th record of each episode")
+        ap.add_argument(
+            "--extra-data",
+            action="append",
+            default=[],
+            help="a dataset trained on with the rounds' data (e.g. the BC dataset); repeat for several",
+        )
         args = ap.parse_args(argv[1:])
         try:
             return train_round(args)
@@ -200,6 +226,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--num-ctrl-pts", type=int, default=10)
     ap.add_argument("--horizon-s", type=float, default=2.0)
     ap.add_argument("--partitions", default="demo,intervention")
+    ap.add_argument("--stride", type=int, default=1, help="keep every N-th record of each episode")
     args = ap.parse_args(argv)
     try:
         out, n, skipped = convert(
@@ -208,6 +235,7 @@ def main(argv: list[str] | None = None) -> int:
             args.num_ctrl_pts,
             args.horizon_s,
             parse_partitions(args.partitions),
+            args.stride,
         )
     except DatasetError as e:
         print(f"convert: error: {e}", file=sys.stderr)

@@ -30,6 +30,7 @@ class RunConfig(_Strict):
     seed: int = Field(0, ge=0, le=2**31 - 1)
     num_threads: int = Field(2, ge=1, le=256)
     deterministic: bool = True
+    init_weights: str | None = None  # a training checkpoint (.pt) whose network weights start this run
 
 
 class ShardConfig(_Strict):
@@ -63,6 +64,7 @@ class ModelConfig(_Strict):
     state_frame: Literal["world", "local"] = "world"
     output_frame: Literal["world", "local"] = "world"
     output: Literal["bspline", "polynomial"] = "bspline"
+    output_prior: Literal["none", "constant_velocity"] = "none"
     poly_degree: int = Field(5, ge=1)
     position_scale_m: float = Field(10.0, gt=0.0)
     velocity_scale_mps: float = Field(3.0, gt=0.0)
@@ -73,6 +75,11 @@ class ModelConfig(_Strict):
             widths = getattr(self, key)
             if any(w < 1 for w in widths):
                 raise ValueError(f"model.{key}: every width must be >= 1, got {widths}")
+        if self.output_prior != "none" and self.state_frame != self.output_frame:
+            raise ValueError(
+                f"model.output_prior: {self.output_prior} needs state_frame == output_frame (the prior is a "
+                f"linear map of the state vector), got {self.state_frame} and {self.output_frame}"
+            )
         return self
 
 

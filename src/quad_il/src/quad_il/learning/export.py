@@ -77,6 +77,7 @@ def policy_metadata(
             "knot_dt_s": policy.horizon_s / (policy.num_ctrl_pts - 3) if policy.num_ctrl_pts > 3 else None,
             "network_frame": "local" if codec.local_frame else "world",
             "network_representation": "polynomial" if codec.polynomial else "bspline",
+            "network_prior": str(model_cfg.get("output_prior", "none")),
         },
         "preprocessing": {
             "depth": (

@@ -4,6 +4,7 @@
                                                                                        concat
     state (B,13) -> state MLP [64, 32, 32] --------------------------------------------+
         -> planning MLP [64, 128, 128] -> Linear -> flat B-spline (K x 3) or polynomial coefficients
+        (+ optionally a fixed linear map of the state: model.output_prior = constant_velocity)
 
 ReLU after every hidden layer of the three MLPs (the thesis: "All networks use ReLU"); the final Linear has
 none.
@@ -21,7 +22,13 @@ from torch import Tensor, nn
 
 from quad_il.learning.config import ModelConfig
 from quad_il.learning.mobilenet_v3 import MobileNetV3
-from quad_il.learning.preprocessing import STATE_DIM, DepthPreprocessor, OutputCodec, StateEncoder
+from quad_il.learning.preprocessing import (
+    STATE_DIM,
+    DepthPreprocessor,
+    OutputCodec,
+    StateEncoder,
+    constant_velocity_prior,
+)
 
 
 def mlp(in_dim: int, widths: Sequence[int]) -> nn.Sequential:
@@ -46,6 +53,7 @@ class PolicyNet(nn.Module):
         state_mlp: Sequence[int] = (64, 32, 32),
         planning_mlp: Sequence[int] = (64, 128, 128),
         state_dim: int = STATE_DIM,
+        prior: Tensor | None = None,
     ) -> None:
         super().__init__()
         self.backbone = MobileNetV3(
@@ -61,11 +69,19 @@ class PolicyNet(nn.Module):
                     # PyTorch's default Linear init (Kaiming-uniform a=sqrt(5)); explicit so it is seeded
                     # here.
                     layer.reset_parameters()
+        # Fixed linear map of the state added to the head's output (model.output_prior; zeros for none).
+        # Not persistent: it follows from the configuration, so checkpoints from before it still load.
+        if prior is None:
+            prior = torch.zeros(out_dim, state_dim)
+        if tuple(prior.shape) != (out_dim, state_dim):
+            raise ValueError(f"prior must be ({out_dim}, {state_dim}), got {tuple(prior.shape)}")
+        self.register_buffer("prior", prior.to(torch.float32), persistent=False)
 
     def forward(self, depth_x: Tensor, state_x: Tensor) -> Tensor:
         f_depth = self.depth_mlp(self.backbone(depth_x))
         f_state = self.state_mlp(state_x)
-        return self.head(self.planning_mlp(torch.cat([f_depth, f_state], dim=1)))
+        y = self.head(self.planning_mlp(torch.cat([f_depth, f_state], dim=1)))
+        return y + torch.matmul(state_x, self.prior.t())
 
 
 class Policy(nn.Module):
@@ -84,6 +100,17 @@ class Policy(nn.Module):
         self.codec = OutputCodec(
             num_ctrl_pts, cfg.output_frame == "local", cfg.output == "polynomial", cfg.poly_degree
         )
+        prior = None
+        if cfg.output_prior == "constant_velocity":
+            prior = constant_velocity_prior(
+                num_ctrl_pts,
+                horizon_s,
+                cfg.state_frame == "local",
+                cfg.output == "polynomial",
+                cfg.poly_degree,
+                cfg.position_scale_m,
+                cfg.velocity_scale_mps,
+            )
         self.net = PolicyNet(
             cfg.variant,
             self.codec.out_dim,
@@ -92,6 +119,7 @@ class Policy(nn.Module):
             cfg.depth_mlp,
             cfg.state_mlp,
             cfg.planning_mlp,
+            prior=prior,
         )
         # Top-level copies of the interface parameters: preserved as attributes of the frozen TorchScript
         # file.

@@ -203,6 +203,42 @@ def polynomial_maps(num_ctrl_pts: int, degree: int) -> tuple[Tensor, Tensor]:
     return torch.linalg.pinv(t) @ a, torch.linalg.pinv(a) @ t
 
 
+def constant_velocity_prior(
+    num_ctrl_pts: int,
+    horizon_s: float,
+    local_frame: bool,
+    polynomial: bool,
+    poly_degree: int,
+    position_scale_m: float,
+    velocity_scale_mps: float,
+) -> Tensor:
+    """(out_dim, STATE_DIM) float32 M: M @ state_vector is the network output, in the training representation,
+    of flying on at constant velocity from the current state (model.output_prior = constant_velocity).
+
+    On uniform knots (i - 3) dt, dt = horizon_s / (K - 3), the cubic B-spline with control points
+    P_i = p + (i - 1) dt v is exactly p(t) = p + t v (p(0) = (P_0 + 4 P_1 + P_2) / 6 = p, p'(0) = v). In the
+    local frame (state and output in the yaw-only vehicle frame) p is the origin and v the state's R^T v; in
+    the world frame p and v are the state's. Both are linear in the state vector of `StateEncoder`, whose
+    layout is [p / s_p (0:3), v / s_v (3:6), q (6:10), goal / s_p (10:13)]. The network then learns only the
+    departure from this extrapolation, and the start of every plan is anchored to the vehicle's own motion.
+    """
+    if num_ctrl_pts < 4:
+        raise ValueError(f"the constant-velocity prior needs at least 4 control points, got {num_ctrl_pts}")
+    if not horizon_s > 0.0:
+        raise ValueError(f"horizon_s must be > 0, got {horizon_s}")
+    dt = horizon_s / (num_ctrl_pts - 3)
+    pts = torch.zeros(num_ctrl_pts, 3, STATE_DIM, dtype=torch.float64)  # P[i, axis] = sum_j m[i, axis, j] x_j
+    for i in range(num_ctrl_pts):
+        for axis in range(3):
+            pts[i, axis, 3 + axis] = (i - 1) * dt * velocity_scale_mps
+            if not local_frame:
+                pts[i, axis, axis] = position_scale_m
+    if polynomial:
+        enc, _ = polynomial_maps(num_ctrl_pts, poly_degree)  # (D + 1, K)
+        pts = torch.einsum("dk,kaj->daj", enc, pts)
+    return pts.reshape(-1, STATE_DIM).to(torch.float32)
+
+
 class OutputCodec(nn.Module):
     """Between world-frame control points (B, K, 3) and the network's flat output vector (B, out_dim).
 

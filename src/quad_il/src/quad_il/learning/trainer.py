@@ -246,6 +246,8 @@ class Trainer:
         self.data = data if data is not None else load_dataset(cfg.data.paths, pre, shards)
         torch.manual_seed(cfg.run.seed)
         self.policy = policy_factory(cfg.model, self.data.num_ctrl_pts, self.data.horizon_s)
+        if cfg.run.init_weights and not resume:
+            load_initial_weights(self.policy, cfg.run.init_weights)
         if cfg.optim.channels_last:
             self.policy = self.policy.to(memory_format=torch.channels_last)
         self.split: Split = split_by_episode(
@@ -718,6 +720,29 @@ class Trainer:
             )
         (self.run_dir / "summary.json").write_text(json.dumps(summary, indent=1))
         return TrainResult(self.run_dir, list(self.history), self.best_epoch, self.best_val_loss, policy_path)
+
+
+def load_initial_weights(policy: Policy, path: str | Path) -> None:
+    """Start from a checkpoint's network weights (run.init_weights: fine-tuning, e.g. a DAgger round from the
+    behaviour-cloned policy). The checkpoint's network must have exactly this run's parameter names and
+    shapes."""
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"run.init_weights: no such checkpoint file {p}")
+    ckpt = torch.load(p, map_location="cpu", weights_only=False)
+    if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(f"run.init_weights: {p} is not a quad_il training checkpoint")
+    own = policy.state_dict()
+    theirs = ckpt["model"]
+    missing = sorted(set(own) - set(theirs))
+    extra = sorted(set(theirs) - set(own))
+    shapes = sorted(k for k in set(own) & set(theirs) if tuple(own[k].shape) != tuple(theirs[k].shape))
+    if missing or extra or shapes:
+        raise ValueError(
+            f"run.init_weights: {p} does not fit this model (missing {missing[:3]}, unexpected {extra[:3]}, "
+            f"other shapes {shapes[:3]}): train with the checkpoint's model settings"
+        )
+    policy.load_state_dict(theirs)
 
 
 def load_policy_checkpoint(path: str | Path) -> tuple[Policy, dict[str, Any]]:
