@@ -24,7 +24,7 @@ import argparse
 import logging
 import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
 
@@ -123,12 +123,25 @@ class FixedSizeArrays:
     def __len__(self) -> int:
         return int(self.episode_id.shape[0])
 
-    def save(self, path: str | os.PathLike[str], *, compress: bool = False) -> Path:
-        """Writes the arrays and scalars to `path` (must end in .npz)."""
+    def save(
+        self,
+        path: str | os.PathLike[str],
+        *,
+        compress: bool = False,
+        extra: Mapping[str, np.ndarray] | None = None,
+    ) -> Path:
+        """Writes the arrays and scalars to `path` (must end in .npz); `extra`: further per-record arrays of
+        other writers (e.g. `il_partition` of quad_il.imitation.convert), never replacing a contract key."""
         path = Path(path)
         if path.suffix != ".npz":
             raise ValueError(f"{path}: output file name must end in .npz")
         arrays = {name: getattr(self, name) for name in NPZ_ARRAYS}
+        for name, value in (extra or {}).items():
+            if name in arrays or name in NPZ_SCALARS:
+                raise ValueError(f"extra array {name!r} would replace a key of the npz contract")
+            if len(value) != len(self):
+                raise ValueError(f"extra array {name!r} has {len(value)} rows, the records are {len(self)}")
+            arrays[name] = value
         arrays["num_ctrl_pts"] = np.asarray(self.num_ctrl_pts, dtype=np.int64)
         arrays["horizon_s"] = np.asarray(self.horizon_s, dtype=np.float64)
         arrays["format_version"] = np.asarray(self.format_version, dtype=np.int64)

@@ -20,10 +20,10 @@ interchangeable. Mapping of the fields:
 - `w_body` = 0 (not recorded; the policy does not use it), `record_seq` = the lockstep frame counter,
   `plan_status_code` = the record's partition code, `fit_rms_m` = the fit residual.
 
-Only the partitions a regression loss trains on are kept by default (DEMO: BC and DAgger; INTERVENTION:
-HG-DAgger, EIL's intervention rows, MEGA-DAgger). EIL's GOOD/BAD rows need
-`quad_il.imitation.losses.eil_loss`, which the trainer does not have yet: they are skipped (counted on
-stderr).
+The array `il_partition` (int32 partition codes, `quad_il.imitation.types.PARTITION_CODES`) is added for the
+trainer's EIL loss. Only the partitions a regression loss trains on are kept by default (DEMO: BC and DAgger;
+INTERVENTION: HG-DAgger, EIL's intervention rows, MEGA-DAgger); EIL's GOOD/BAD rows are converted with
+`--partitions demo,intervention,good,bad` and trained on with `optim.loss=eil`.
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ from quad_il.data.postprocess import (
     yaw_from_quaternion_xyzw,
 )
 from quad_il.imitation.dataset import DatasetError, list_episodes, read_episode
-from quad_il.imitation.types import PARTITION_CODES, Partition, Record
+from quad_il.imitation.types import IL_PARTITION_KEY, PARTITION_CODES, Partition, Record
 
 DEFAULT_PARTITIONS = (Partition.DEMO, Partition.INTERVENTION)
 
@@ -156,7 +156,8 @@ def convert(
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.stem + ".partial.npz")
-    arrays.save(tmp)
+    # il_partition: what the trainer's EIL loss (optim.loss = eil) needs to know of each row.
+    arrays.save(tmp, extra={IL_PARTITION_KEY: arrays.plan_status_code.astype(np.int32)})
     tmp.replace(out)
     return out, len(arrays), skipped
 

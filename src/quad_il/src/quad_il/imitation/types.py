@@ -46,6 +46,9 @@ PARTITION_CODES: dict[Partition, int] = {
     Partition.GOOD: 2,
     Partition.BAD: 3,
 }
+# The npz array (quad_il.imitation.convert) holding each row's PARTITION_CODES value; rows of files without it
+# (the C++ collector's) are DEMO.
+IL_PARTITION_KEY = "il_partition"
 CONTROLLER_CODES: dict[Controller, int] = {Controller.EXPERT: 0, Controller.LEARNER: 1, Controller.NONE: 2}
 
 

@@ -83,6 +83,15 @@ class ModelConfig(_Strict):
         return self
 
 
+class EILTrainConfig(_Strict):
+    """optim.loss = eil (docs/imitation_learning.md, "EIL"): rows' partitions from the npz `il_partition`."""
+
+    threshold_b_m: float = Field(
+        0.5, gt=0.0
+    )  # B = threshold_b_m ** 2 on the mean squared ctrl-point distance
+    intervention_weight: float = Field(1.0, ge=0.0)  # lambda on the DEMO/INTERVENTION regression rows
+
+
 class OptimConfig(_Strict):
     optimizer: Literal["adam", "adamw", "sgd"] = "adam"
     lr: float = Field(1e-3, gt=0.0)
@@ -90,7 +99,8 @@ class OptimConfig(_Strict):
     momentum: float = Field(0.9, ge=0.0, lt=1.0)
     batch_size: int = Field(32, ge=2)
     epochs: int = Field(30, ge=1)
-    loss: Literal["mse", "sse"] = "mse"
+    loss: Literal["mse", "sse", "eil"] = "mse"
+    eil: EILTrainConfig = EILTrainConfig()
     grad_clip_norm: float | None = Field(None, gt=0.0)
     channels_last: bool = True
 
@@ -139,6 +149,15 @@ class TrainConfig(_Strict):
     scheduler: SchedulerConfig = SchedulerConfig()
     log: LogConfig = LogConfig()
     dist: DistConfig = DistConfig()
+
+    @model_validator(mode="after")
+    def _eil_needs_control_points(self) -> TrainConfig:
+        if self.optim.loss == "eil" and self.model.output != "bspline":
+            raise ValueError(
+                "optim.loss: eil measures distances between control points: it needs model.output = bspline, "
+                f"got {self.model.output}"
+            )
+        return self
 
     def to_dict(self) -> dict[str, Any]:
         return self.model_dump(mode="json")

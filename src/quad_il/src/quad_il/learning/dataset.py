@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 from torch import Tensor
 
 from quad_il.data import FORMAT_VERSION as COLLECTOR_FORMAT_VERSION
+from quad_il.imitation.types import IL_PARTITION_KEY, PARTITION_CODES, Partition
 from quad_il.learning.preprocessing import DepthPreprocessor, world_to_local_points, yaw_from_quaternion
 
 # Versions of the collector's npz layout this code reads (quad_il.data, docs/data_format.md).
@@ -88,6 +89,9 @@ class PreparedData:
     horizon_s: float
     format_version: int
     sources: list[SourceInfo] = field(default_factory=list)
+    # Per-sample PARTITION_CODES (quad_il.imitation.types) from the npz array `il_partition`; None when no
+    # source has it (every row DEMO). Only the EIL loss reads it.
+    partition: NDArray[np.int32] | None = None
 
     def __len__(self) -> int:
         return int(self.depth_x.shape[0])
@@ -332,6 +336,22 @@ def prepare_arrays(
             "differs"
         )
     info = SourceInfo(str(source), n, int(depth.shape[1]), int(depth.shape[2]), version)
+    partition = None
+    if IL_PARTITION_KEY in arrays:
+        partition = np.asarray(arrays[IL_PARTITION_KEY])
+        if partition.shape != (n,) or not np.issubdtype(partition.dtype, np.integer):
+            raise DatasetError(
+                f"{source}: {IL_PARTITION_KEY} must be ({n},) integers, "
+                f"got {partition.dtype} {partition.shape}"
+            )
+        unknown = ~np.isin(partition, list(PARTITION_CODES.values()))
+        if unknown.any():
+            i = int(np.flatnonzero(unknown)[0])
+            raise DatasetError(
+                f"{source}: {IL_PARTITION_KEY} of record {i} is {int(partition[i])}, not a partition code "
+                f"{sorted(PARTITION_CODES.values())}"
+            )
+        partition = partition.astype(np.int32)
     data = PreparedData(
         depth_x=depth_x,
         p_world_body=p,
@@ -347,6 +367,7 @@ def prepare_arrays(
         horizon_s=horizon_s,
         format_version=version,
         sources=[info],
+        partition=partition,
     )
     return data, info
 
@@ -386,6 +407,18 @@ def concatenate(parts: Sequence[PreparedData]) -> PreparedData:
         horizon_s=first.horizon_s,
         format_version=first.format_version,
         sources=[s for p in parts for s in p.sources],
+        partition=(
+            None
+            if all(p.partition is None for p in parts)
+            else np.concatenate(
+                [
+                    p.partition
+                    if p.partition is not None
+                    else np.full(len(p), PARTITION_CODES[Partition.DEMO], dtype=np.int32)
+                    for p in parts
+                ]
+            )
+        ),
     )
 
 

@@ -73,7 +73,7 @@ from quad_il.learning.distributed import (
     revert_batchnorm,
 )
 from quad_il.learning.export import export_torchscript, policy_metadata
-from quad_il.learning.losses import batch_loss
+from quad_il.learning.losses import batch_loss, eil_per_sample
 from quad_il.learning.model import Policy, build_policy
 from quad_il.learning.preprocessing import DepthPreprocessor
 from quad_il.learning.runinfo import dataset_manifest, software_info
@@ -257,6 +257,18 @@ class Trainer:
             cfg.run.seed,
             cfg.data.train_episode_fraction,
         )
+        self.partition = torch.from_numpy(
+            self.data.partition
+            if self.data.partition is not None
+            else np.zeros(len(self.data), dtype=np.int32)  # DEMO
+        )
+        if cfg.optim.loss == "eil" and self.data.partition is None:
+            dist.run_on_main(
+                lambda: print(
+                    "[train] optim.loss=eil on data without il_partition: every row is DEMO (a regression)",
+                    file=sys.stderr,
+                )
+            )
         with torch.no_grad():
             self.targets = self.policy.encode_target(
                 self.data.ctrl_world, self.data.p_world_body, self.data.q_world_body
@@ -461,6 +473,15 @@ class Trainer:
             f"{self.dist.world_size} processes): " + " | ".join(found)
         )
 
+    def _batch_loss(self, y: Tensor, batch: Batch) -> tuple[Tensor, Tensor]:
+        """(batch mean, per-sample losses) of optim.loss; EIL reads each row's partition."""
+        o = self.cfg.optim
+        if o.loss != "eil":
+            return batch_loss(o.loss, y, batch.target)
+        part = self.partition.index_select(0, torch.from_numpy(batch.indices)).to(y.device)
+        per = eil_per_sample(y, batch.target, part, o.eil.threshold_b_m, o.eil.intervention_weight)
+        return per.mean(), per
+
     def _to_device(self, batch: Batch) -> Batch:
         if self.device.type == "cpu":
             return batch
@@ -498,7 +519,7 @@ class Trainer:
             if o.channels_last:
                 x = x.contiguous(memory_format=torch.channels_last)
             y = forward(x, batch.p_world_body, batch.v_world, batch.q_world_body, batch.goal_world)
-            loss, per = batch_loss(o.loss, y, batch.target)
+            loss, per = self._batch_loss(y, batch)
             if self.dist.enabled:
                 # The global batch's loss and a non-finite count, summed over ranks (one small all-reduce),
                 # checked before backward so that every rank stops at the same step.
@@ -552,7 +573,7 @@ class Trainer:
             y = self.policy.forward_prepared(
                 x, batch.p_world_body, batch.v_world, batch.q_world_body, batch.goal_world
             )
-            _, per = batch_loss(self.cfg.optim.loss, y, batch.target)
+            _, per = self._batch_loss(y, batch)
             if not bool(torch.isfinite(per).all()):
                 if not self.dist.enabled:
                     raise self._nonfinite(epoch, batch, per, "validation loss")
