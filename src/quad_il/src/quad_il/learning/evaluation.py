@@ -237,8 +237,8 @@ def write_report(
     lines += [
         "",
         "MSE and Bhattacharyya distance are invariant under the rigid world-to-local transform",
-        "(equal columns);"
-        "the cosine similarity is not: in the world frame it is dominated by the absolute position.",
+        "(equal columns); the cosine similarity is not: in the world frame it is dominated by the absolute "
+        "position.",
         "",
         "![expert vs learned, world frame](bsplines_world.png)",
         "",
