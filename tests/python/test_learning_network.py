@@ -476,3 +476,22 @@ def test_network_output_is_deterministic_for_a_seed() -> None:
             outs.append(policy.net(torch.ones(1, 1, 32, 32), torch.ones(1, 13)))
     assert torch.equal(outs[0], outs[1])
     assert np.isfinite(outs[0].numpy()).all()
+
+
+@pytest.mark.parametrize("local", [False, True])
+def test_without_velocity_input_the_state_ignores_the_velocity(local: bool) -> None:
+    gen = torch.Generator().manual_seed(4)
+    p, goal = torch.randn(3, 3, generator=gen), torch.randn(3, 3, generator=gen)
+    q = torch.nn.functional.normalize(torch.randn(3, 4, generator=gen), dim=1)
+    v1, v2 = torch.randn(3, 3, generator=gen), torch.randn(3, 3, generator=gen)
+    blind = StateEncoder(local, 10.0, 3.0, velocity_input=False)
+    seeing = StateEncoder(local, 10.0, 3.0)
+    assert torch.equal(blind(p, v1, q, goal), blind(p, v2, q, goal))
+    assert not torch.equal(seeing(p, v1, q, goal), seeing(p, v2, q, goal))
+    keep = [0, 1, 2, *range(6, 13)]  # everything but the velocity entries is unchanged
+    torch.testing.assert_close(blind(p, v1, q, goal)[:, keep], seeing(p, v1, q, goal)[:, keep])
+    assert not blind(p, v1, q, goal)[:, 3:6].any()
+    with pytest.raises(ValueError, match="the constant-velocity prior needs model.velocity_input: true"):
+        ModelConfig(
+            state_frame="local", output_frame="local", output_prior="constant_velocity", velocity_input=False
+        )

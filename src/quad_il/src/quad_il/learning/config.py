@@ -68,6 +68,7 @@ class ModelConfig(_Strict):
     poly_degree: int = Field(5, ge=1)
     position_scale_m: float = Field(10.0, gt=0.0)
     velocity_scale_mps: float = Field(3.0, gt=0.0)
+    velocity_input: bool = True  # false: the state's velocity entries are zero (no copying of the motion)
 
     @model_validator(mode="after")
     def _widths_positive(self) -> ModelConfig:
@@ -75,6 +76,8 @@ class ModelConfig(_Strict):
             widths = getattr(self, key)
             if any(w < 1 for w in widths):
                 raise ValueError(f"model.{key}: every width must be >= 1, got {widths}")
+        if self.output_prior != "none" and not self.velocity_input:
+            raise ValueError("model.output_prior: the constant-velocity prior needs model.velocity_input: true")
         if self.output_prior != "none" and self.state_frame != self.output_frame:
             raise ValueError(
                 f"model.output_prior: {self.output_prior} needs state_frame == output_frame (the prior is a "

@@ -90,6 +90,7 @@ def policy_metadata(
             "state_frame": "local" if enc.local_frame else "world",
             "position_scale_m": enc.position_scale_m,
             "velocity_scale_mps": enc.velocity_scale_mps,
+            "velocity_input": enc.velocity_gain != 0.0,
         },
         "model": model_cfg,
     }

@@ -95,7 +95,7 @@ class Policy(nn.Module):
         super().__init__()
         self.depth_pre = DepthPreprocessor(cfg.input_height, cfg.input_width, cfg.max_depth_m)
         self.state_enc = StateEncoder(
-            cfg.state_frame == "local", cfg.position_scale_m, cfg.velocity_scale_mps
+            cfg.state_frame == "local", cfg.position_scale_m, cfg.velocity_scale_mps, cfg.velocity_input
         )
         self.codec = OutputCodec(
             num_ctrl_pts, cfg.output_frame == "local", cfg.output == "polynomial", cfg.poly_degree

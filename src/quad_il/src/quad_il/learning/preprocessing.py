@@ -98,11 +98,20 @@ class StateEncoder(nn.Module):
     matters. Quaternions are normalised and given w >= 0. s_p = position_scale_m, s_v = velocity_scale_mps.
     """
 
-    def __init__(self, local_frame: bool, position_scale_m: float, velocity_scale_mps: float) -> None:
+    def __init__(
+        self,
+        local_frame: bool,
+        position_scale_m: float,
+        velocity_scale_mps: float,
+        velocity_input: bool = True,
+    ) -> None:
         super().__init__()
         if not (position_scale_m > 0.0 and velocity_scale_mps > 0.0):
             raise ValueError(f"state scales must be > 0, got {position_scale_m}, {velocity_scale_mps}")
         self.local_frame = bool(local_frame)
+        # False: the velocity entries are zero (model.velocity_input; the network cannot copy the vehicle's
+        # motion into its plan).
+        self.velocity_gain = 1.0 if velocity_input else 0.0
         self.position_scale_m = float(position_scale_m)
         self.velocity_scale_mps = float(velocity_scale_mps)
 
@@ -114,7 +123,7 @@ class StateEncoder(nn.Module):
             return torch.cat(
                 [
                     p_world_body / self.position_scale_m,
-                    v_world / self.velocity_scale_mps,
+                    v_world * (self.velocity_gain / self.velocity_scale_mps),
                     q,
                     goal_world / self.position_scale_m,
                 ],
@@ -139,7 +148,7 @@ class StateEncoder(nn.Module):
         return torch.cat(
             [
                 p_local / self.position_scale_m,
-                v_local / self.velocity_scale_mps,
+                v_local * (self.velocity_gain / self.velocity_scale_mps),
                 q_local,
                 goal_local / self.position_scale_m,
             ],
