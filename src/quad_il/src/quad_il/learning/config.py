@@ -77,7 +77,9 @@ class ModelConfig(_Strict):
             if any(w < 1 for w in widths):
                 raise ValueError(f"model.{key}: every width must be >= 1, got {widths}")
         if self.output_prior != "none" and not self.velocity_input:
-            raise ValueError("model.output_prior: the constant-velocity prior needs model.velocity_input: true")
+            raise ValueError(
+                "model.output_prior: the constant-velocity prior needs model.velocity_input: true"
+            )
         if self.output_prior != "none" and self.state_frame != self.output_frame:
             raise ValueError(
                 f"model.output_prior: {self.output_prior} needs state_frame == output_frame (the prior is a "
