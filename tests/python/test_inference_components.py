@@ -109,6 +109,15 @@ def test_metadata_errors_name_the_key(policies) -> None:
     bad["output"]["bspline_order"] = 4
     with pytest.raises(PolicyFormatError, match="'output.bspline_order' must be 3"):
         parse_policy_meta(bad, "p.ts")
+    assert parse_policy_meta(meta, "p.ts").velocity_input  # absent in older files: true
+    blind = copy.deepcopy(meta)
+    blind["preprocessing"]["velocity_input"] = False
+    assert not parse_policy_meta(blind, "p.ts").velocity_input
+    blind["preprocessing"]["velocity_input"] = "no"
+    with pytest.raises(
+        PolicyFormatError, match="'preprocessing.velocity_input' must be true or false, got 'no'"
+    ):
+        parse_policy_meta(blind, "p.ts")
 
 
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")

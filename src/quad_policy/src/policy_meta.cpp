@@ -59,6 +59,17 @@ class MetaReader {
     return v;
   }
 
+  // A boolean key that files exported before it existed lack (then `fallback`).
+  bool OptionalBool(const std::string& path, bool fallback) const {
+    const std::size_t dot = path.rfind('.');
+    const YAML::Node parent = dot == std::string::npos ? YAML::Clone(root_) : Node(path.substr(0, dot));
+    const std::string key = dot == std::string::npos ? path : path.substr(dot + 1);
+    if (!parent.IsMap() || !parent[key]) return fallback;
+    const YAML::Node n = parent[key];
+    if (n.IsScalar() && (n.Scalar() == "true" || n.Scalar() == "false")) return n.Scalar() == "true";
+    Fail(path, "must be true or false, got " + Dump(n));
+  }
+
   PolicyFrame Frame(const std::string& path) const {
     const std::string s = Get<std::string>(path);
     if (s == "world") return PolicyFrame::kWorld;
@@ -106,6 +117,7 @@ PolicyMeta ParsePolicyMeta(const std::string& json_text, const std::string& sour
   m.state_frame = r.Frame("preprocessing.state_frame");
   m.position_scale_m = r.PositiveDouble("preprocessing.position_scale_m");
   m.velocity_scale_mps = r.PositiveDouble("preprocessing.velocity_scale_mps");
+  m.velocity_input = r.OptionalBool("preprocessing.velocity_input", true);
   m.num_ctrl_pts = r.IntAtLeast("output.num_ctrl_pts", kPolicyBsplineOrder + 1);
   m.horizon_s = r.PositiveDouble("output.horizon_s");
   const int order = r.Get<int>("output.bspline_order");

@@ -109,10 +109,11 @@ StateVector EncodeState(const VehicleState& state, const Eigen::Vector3d& goal_w
     throw std::invalid_argument("q_world_body has a NaN/Inf element");
   if (state.q_world_body.coeffs().squaredNorm() < 1e-24) throw std::invalid_argument("q_world_body is zero");
   const Eigen::Vector3f p = state.p_world_body.cast<float>();
-  const Eigen::Vector3f v = state.v_world.cast<float>();
   const Eigen::Vector3f g = goal_world.cast<float>();
   const float sp = static_cast<float>(meta.position_scale_m);
   const float sv = static_cast<float>(meta.velocity_scale_mps);
+  const Eigen::Vector3f v =
+      meta.velocity_input ? Eigen::Vector3f(state.v_world.cast<float>()) : Eigen::Vector3f::Zero();
   const QuatF q = Canonical(ToQuatF(state.q_world_body));
   StateVector s{};
   if (meta.state_frame == PolicyFrame::kWorld) {

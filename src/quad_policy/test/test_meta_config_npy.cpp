@@ -15,6 +15,7 @@
 #include "quad_policy/fixture.h"
 #include "quad_policy/npy.h"
 #include "quad_policy/policy_meta.h"
+#include "quad_policy/preprocessing.h"
 
 namespace quad_policy {
 namespace {
@@ -77,6 +78,30 @@ TEST(PolicyMeta, ErrorsNameTheFileAndTheKey) {
       ErrorOf([&] { ParsePolicyMeta(other, "p.ts"); }).find("unsupported policy format 'quad_il_policy/9'"),
       std::string::npos);
   EXPECT_NE(ErrorOf([] { ParsePolicyMeta("{not json", "p.ts"); }).find("not valid JSON"), std::string::npos);
+}
+
+TEST(PolicyMeta, VelocityInputIsOptionalAndZeroesTheVelocityEntries) {
+  EXPECT_TRUE(ParsePolicyMeta(MetaJson(), "p.ts").velocity_input);  // files exported before the key
+  const std::string key = "\"velocity_scale_mps\": 3.0";
+  std::string blind = MetaJson();
+  blind.replace(blind.find(key), key.size(), key + ", \"velocity_input\": false");
+  const PolicyMeta m = ParsePolicyMeta(blind, "p.ts");
+  EXPECT_FALSE(m.velocity_input);
+  VehicleState s;
+  s.p_world_body = Eigen::Vector3d(1.0, 2.0, 1.5);
+  s.v_world = Eigen::Vector3d(2.0, -1.0, 0.5);
+  s.q_world_body = Eigen::Quaterniond(Eigen::AngleAxisd(0.4, Eigen::Vector3d::UnitZ()));
+  const StateVector x = EncodeState(s, Eigen::Vector3d(9.0, 9.0, 1.0), m);
+  EXPECT_EQ(x[3], 0.0f);
+  EXPECT_EQ(x[4], 0.0f);
+  EXPECT_EQ(x[5], 0.0f);
+  EXPECT_FLOAT_EQ(x[0], 0.1f);  // the rest is untouched
+  std::string bad = MetaJson();
+  bad.replace(bad.find(key), key.size(), key + ", \"velocity_input\": 7");
+  EXPECT_NE(ErrorOf([&] {
+              ParsePolicyMeta(bad, "p.ts");
+            }).find("'preprocessing.velocity_input' must be true or false, got 7"),
+            std::string::npos);
 }
 
 TEST(PolicyNodeConfig, TheRepositoryConfigLoads) {

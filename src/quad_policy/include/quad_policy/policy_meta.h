@@ -35,6 +35,7 @@ struct PolicyMeta {
   PolicyFrame state_frame = PolicyFrame::kWorld;
   double position_scale_m = 1.0;
   double velocity_scale_mps = 1.0;
+  bool velocity_input = true;  // false: the state's velocity entries are zero (preprocessing.velocity_input)
   // output
   int num_ctrl_pts = 0;
   double horizon_s = 0.0;

@@ -33,6 +33,7 @@ class PolicyMeta:
     output_frame: Frame
     representation: Literal["bspline", "polynomial"]
     poly_degree: int  # 0 for the B-spline representation
+    velocity_input: bool = True  # false: the state's velocity entries are zero (model.velocity_input)
 
     @property
     def knot_dt_s(self) -> float:
@@ -50,6 +51,20 @@ def _get(meta: dict[str, Any], path: str, source: str) -> Any:
             raise PolicyFormatError(f"{source}: policy metadata key '{path}' is missing")
         node = node[part]
     return node
+
+
+def _optional_bool(meta: dict[str, Any], path: str, default: bool, source: str) -> bool:
+    """A boolean key that files exported before it existed lack (then `default`)."""
+    parent, _, key = path.rpartition(".")
+    node = _get(meta, parent, source) if parent else meta
+    if not isinstance(node, dict) or key not in node:
+        return default
+    value = node[key]
+    if not isinstance(value, bool):
+        raise PolicyFormatError(
+            f"{source}: policy metadata key '{path}' must be true or false, got {value!r}"
+        )
+    return value
 
 
 def _int_at_least(meta: dict[str, Any], path: str, lo: int, source: str) -> int:
@@ -108,4 +123,5 @@ def parse_policy_meta(meta: dict[str, Any], source: str) -> PolicyMeta:
         output_frame=_frame(meta, "output.network_frame", source),
         representation=rep,
         poly_degree=_int_at_least(meta, "model.poly_degree", 1, source) if rep == "polynomial" else 0,
+        velocity_input=_optional_bool(meta, "preprocessing.velocity_input", True, source),
     )

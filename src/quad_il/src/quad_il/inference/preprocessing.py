@@ -32,7 +32,7 @@ class PolicyPreprocessing:
         self.meta = meta
         self.depth_pre = DepthPreprocessor(meta.input_height, meta.input_width, meta.max_depth_m)
         self.state_enc = StateEncoder(
-            meta.state_frame == "local", meta.position_scale_m, meta.velocity_scale_mps
+            meta.state_frame == "local", meta.position_scale_m, meta.velocity_scale_mps, meta.velocity_input
         )
         self.codec = OutputCodec(
             meta.num_ctrl_pts,
