@@ -114,10 +114,12 @@ def write_comparison(
         f"Command: `{command}`",
         "",
         "Generation 0 is the starting policy; generation r + 1 the policy trained after round r (on the",
-        "starting data plus rounds 0..r). Records: the round's rows; steps: who flew them.",
+        "starting data plus rounds 0..r). Round records: the rows the round recorded (HG-DAgger keeps only",
+        "expert-controlled steps), and who flew those steps (the expert flies a DAgger step with beta = 0",
+        "only when the learner has no plan for it).",
         "",
         "| algorithm | generation | episodes | success | collision | timeout | round records "
-        "| expert / learner steps |",
+        "| recorded steps flown by expert / learner |",
         "|---|---|---|---|---|---|---|---|",
     ]
     all_rows = list(baselines) + [r for rows in runs.values() for r in rows]
