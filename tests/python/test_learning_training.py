@@ -152,6 +152,19 @@ def test_init_weights_starts_from_a_checkpoint_and_rejects_another_model(
         Trainer(
             tiny_config(dataset, tmp_path, "other", "model.depth_mlp=[16]", f"run.init_weights={str(ckpt)!r}")
         )
+    with pytest.raises(
+        ValueError, match=r"was trained with other model settings \(model.state_frame: world -> local"
+    ):
+        Trainer(
+            tiny_config(
+                dataset,
+                tmp_path,
+                "frames",
+                "model.state_frame=local",
+                "model.output_frame=local",
+                f"run.init_weights={str(ckpt)!r}",
+            )
+        )
     with pytest.raises(FileNotFoundError, match="run.init_weights: no such checkpoint file"):
         Trainer(tiny_config(dataset, tmp_path, "missing", f"run.init_weights={str(tmp_path / 'no.pt')!r}"))
 

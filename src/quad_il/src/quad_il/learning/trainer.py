@@ -247,7 +247,7 @@ class Trainer:
         torch.manual_seed(cfg.run.seed)
         self.policy = policy_factory(cfg.model, self.data.num_ctrl_pts, self.data.horizon_s)
         if cfg.run.init_weights and not resume:
-            load_initial_weights(self.policy, cfg.run.init_weights)
+            load_initial_weights(self.policy, cfg.run.init_weights, cfg.model)
         if cfg.optim.channels_last:
             self.policy = self.policy.to(memory_format=torch.channels_last)
         self.split: Split = split_by_episode(
@@ -743,16 +743,40 @@ class Trainer:
         return TrainResult(self.run_dir, list(self.history), self.best_epoch, self.best_val_loss, policy_path)
 
 
-def load_initial_weights(policy: Policy, path: str | Path) -> None:
+# Model settings that change what the weights mean without changing their shapes.
+_SEMANTIC_MODEL_KEYS = (
+    "state_frame",
+    "output_frame",
+    "output",
+    "output_prior",
+    "velocity_input",
+    "position_scale_m",
+    "velocity_scale_mps",
+    "max_depth_m",
+)
+
+
+def load_initial_weights(policy: Policy, path: str | Path, model_cfg: ModelConfig | None = None) -> None:
     """Start from a checkpoint's network weights (run.init_weights: fine-tuning, e.g. a DAgger round from the
     behaviour-cloned policy). The checkpoint's network must have exactly this run's parameter names and
-    shapes."""
+    shapes, and (with `model_cfg`) the same frames, output, prior and input scales."""
     p = Path(path)
     if not p.is_file():
         raise FileNotFoundError(f"run.init_weights: no such checkpoint file {p}")
     ckpt = torch.load(p, map_location="cpu", weights_only=False)
     if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
         raise ValueError(f"run.init_weights: {p} is not a quad_il training checkpoint")
+    if model_cfg is not None:
+        stored = ModelConfig.model_validate(ckpt["config"]["model"])
+        differ = [
+            f"model.{k}: {getattr(stored, k)} -> {getattr(model_cfg, k)}"
+            for k in _SEMANTIC_MODEL_KEYS
+            if getattr(stored, k) != getattr(model_cfg, k)
+        ]
+        if differ:
+            raise ValueError(
+                f"run.init_weights: {p} was trained with other model settings ({'; '.join(differ)})"
+            )
     own = policy.state_dict()
     theirs = ckpt["model"]
     missing = sorted(set(own) - set(theirs))
