@@ -3,7 +3,7 @@ a running simulation or of a recorded bag.
 
     python -m quad_il.tools.snapshot --out DIR --times 2,10.5 [--bag run.bag] [--view follow|top]
         [--voxel-map] [--trajectory /planner/bspline:learned] [--trajectory /expert/bspline:expert]
-        [--size 1280x720] [--settle-s 3] [--timeout-s 300] [--blank]
+        [--size 1280x720] [--settle-s 3] [--max-extra-settles 5] [--timeout-s 300] [--blank]
 
 Live (no --bag): connects to ROS_MASTER_URI (a running quad_sim, use_sim_time) and captures when the sim time
 reaches each time (seconds of sim time; the simulator's clock starts at 1 s). With --bag: starts a private
@@ -14,7 +14,9 @@ sampled at 20 points per knot interval; the label picks the colour: expert blue,
 green).
 --view top replaces the vehicle-following camera by a top-down orthographic view of the world. --blank
 disables every display: a reference frame of the empty scene. Writes DIR/snapshot_<time>.png (and
-DIR/rviz.rviz, the config used); prints the PNG paths. Exit status 0 done, 1 failure (message on stderr).
+DIR/rviz.rviz, the config used); prints the PNG paths. Each capture waits --settle-s seconds of wall time,
+then repeats (up to --max-extra-settles times) while the picture still changes, so a slowly drawing rviz on a
+loaded machine is not caught half done. Exit status 0 done, 1 failure (message on stderr).
 
 Needs Xvfb, rviz and ImageMagick's `import` (scripts/apt-packages.txt); rviz renders with Mesa's software
 renderer under Xvfb (PLATFORM.md).
@@ -290,13 +292,7 @@ def take_snapshots(args: argparse.Namespace) -> list[Path]:
                 markers.publish()
             time.sleep(args.settle_s)  # wall time: rviz draws at about 10 frames/s under Xvfb
             png = out / f"snapshot_{t:g}.png"
-            subprocess.run(
-                ["import", "-display", display, "-window", "root", f"PNG24:{png}"],
-                check=True,
-                capture_output=True,
-            )
-            if not png.is_file() or png.stat().st_size == 0:
-                raise SnapshotError(f"import wrote no image to {png}")
+            _capture_settled(display, png, args.settle_s, args.max_extra_settles)
             paths.append(png)
             print(png, flush=True)
     finally:
@@ -304,6 +300,33 @@ def take_snapshots(args: argparse.Namespace) -> list[Path]:
             _stop(p)
         _stop(xvfb, signal.SIGTERM)
     return paths
+
+
+def _capture(display: str, png: Path) -> np.ndarray:
+    subprocess.run(
+        ["import", "-display", display, "-window", "root", f"PNG24:{png}"], check=True, capture_output=True
+    )
+    if not png.is_file() or png.stat().st_size == 0:
+        raise SnapshotError(f"import wrote no image to {png}")
+    import matplotlib.image as mpimg
+
+    return np.asarray(mpimg.imread(str(png)), dtype=np.float32)
+
+
+def _capture_settled(display: str, png: Path, settle_s: float, max_extra: int) -> None:
+    """Capture until the picture stops changing: on a loaded machine rviz may still be receiving and drawing
+    the world's markers after the fixed settle time. Up to `max_extra` further captures, `settle_s / 3`
+    apart, until fewer than 0.5 % of the pixels change between two of them (a moving vehicle keeps changing
+    a few)."""
+    previous = _capture(display, png)
+    for _ in range(max_extra):
+        time.sleep(max(0.2, settle_s / 3.0))
+        current = _capture(display, png)
+        same_size = current.shape == previous.shape
+        changed = float(np.any(np.abs(current - previous) > 0.05, axis=-1).mean()) if same_size else 1.0
+        if changed < 0.005:
+            return
+        previous = current
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -319,6 +342,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--trajectory", action="append", default=[], help="TOPIC[:LABEL] of quad_msgs/Bspline")
     ap.add_argument("--size", default="1280x720")
     ap.add_argument("--settle-s", type=float, default=3.0)
+    ap.add_argument(
+        "--max-extra-settles",
+        type=int,
+        default=5,
+        help="further captures while the picture still changes (a loaded machine draws slowly)",
+    )
     ap.add_argument("--timeout-s", type=float, default=300.0)
     ap.add_argument("--blank", action="store_true", help="every display off: the empty scene (a reference)")
     args = ap.parse_args(argv)
