@@ -97,6 +97,7 @@ MapUpdateResult PlannerManager::UpdateDepth(std::shared_ptr<const DepthFrame> fr
       esdf_pending_ = std::make_pair(lo, hi);
     } else {
       esdf_.Update(map_, lo, hi);
+      r.esdf_computed = true;
     }
   }
   const double t2 = NowMs();

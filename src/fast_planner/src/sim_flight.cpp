@@ -156,6 +156,7 @@ FlightStats FlyExpert(const PlannerConfig& planner_config, const quad_sim::SimCo
         stats.map_update_ms.push_back(mu.total_ms);
         stats.map_integrate_ms.push_back(mu.integrate_ms);
         stats.map_esdf_ms.push_back(mu.esdf_ms);
+        stats.map_esdf_computed.push_back(mu.esdf_computed);
       }
     }
     if (odom_due) {

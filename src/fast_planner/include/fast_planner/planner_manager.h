@@ -102,6 +102,7 @@ struct MapUpdateResult {
   double integrate_ms = 0.0;
   double esdf_ms = 0.0;
   double total_ms = 0.0;
+  bool esdf_computed = false;  // the ESDF was recomputed in this update (never with map.esdf_on_demand)
 };
 
 class PlannerManager {

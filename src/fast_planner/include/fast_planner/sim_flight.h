@@ -46,6 +46,7 @@ struct FlightStats {
   std::vector<double> map_update_ms;      // per depth frame: ray casting + ESDF (0 with esdf_on_demand)
   std::vector<double> map_integrate_ms;   // per depth frame: ray casting alone
   std::vector<double> map_esdf_ms;        // per depth frame: ESDF alone
+  std::vector<bool> map_esdf_computed;    // per depth frame: whether the ESDF was recomputed after it
   std::vector<std::string> failure_reasons;
   std::vector<std::string> events;  // "t=1.234 s: <state machine transition or failure>"
 };

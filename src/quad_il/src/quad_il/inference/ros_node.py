@@ -108,6 +108,15 @@ class PolicyNode:
             "camera/depth/camera_info", CameraInfo, self._on_info, queue_size=2, tcp_nodelay=True
         )
         rospy.Subscriber("sim/status", EpisodeStatus, self._on_status, queue_size=10, tcp_nodelay=True)
+        # A lockstepped simulator starts sending frames once this node subscribes to them; an acknowledgement
+        # sent before the simulator has connected to our FrameAck publisher is lost (a lockstep timeout). So
+        # subscribe to frames only after that connection exists (up to 5 s: a simulator that is not
+        # lockstepped may never connect).
+        deadline = time.monotonic() + 5.0
+        while self.ack_pub.get_num_connections() == 0 and time.monotonic() < deadline:
+            if rospy.is_shutdown():
+                return
+            time.sleep(0.01)
         # rospy gives each subscription its own thread: frames are decided while odometry keeps arriving.
         rospy.Subscriber("camera/depth/image", Image, self._on_depth, queue_size=2, tcp_nodelay=True)
 
