@@ -105,6 +105,42 @@ class EILLossTerms:
     intervention: Tensor
 
 
+def eil_row_terms(
+    pred: Tensor,
+    label_ctrl: Tensor,
+    partition: Tensor,
+    threshold_b_m: float,
+    contrast_ctrl: Tensor | None = None,
+    contrast_mask: Tensor | None = None,
+    ranking_margin_m2: float = 0.0,
+    ranking_weight: float = 0.0,
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Per row (B,) each: l_good on GOOD rows, l_bad on BAD rows, l_C on DEMO/INTERVENTION rows, zero on the
+    others; `partition` holds PARTITION_CODES per row (see module docstring)."""
+    if not threshold_b_m > 0.0:
+        raise LossInputError(f"threshold_b_m must be > 0, got {threshold_b_m}")
+    if partition.dim() != 1 or partition.size(0) != pred.size(0):
+        raise LossInputError(f"partition must have shape ({pred.size(0)},), got {tuple(partition.shape)}")
+    known = torch.tensor(sorted(PARTITION_CODES.values()), device=partition.device)
+    if not bool(torch.isin(partition, known).all()):
+        raise LossInputError(f"partition holds unknown codes: {sorted(set(partition.tolist()))}")
+    b_m2 = threshold_b_m**2
+    good_rows = partition == PARTITION_CODES[Partition.GOOD]
+    bad_rows = partition == PARTITION_CODES[Partition.BAD]
+    int_rows = (partition == PARTITION_CODES[Partition.INTERVENTION]) | (
+        partition == PARTITION_CODES[Partition.DEMO]
+    )
+    zero = pred.new_zeros(pred.size(0))
+    l_c = eil_intervention_loss(
+        pred, label_ctrl, contrast_ctrl, contrast_mask, ranking_margin_m2, ranking_weight
+    )
+    return (
+        torch.where(good_rows, eil_good_loss(pred, label_ctrl, b_m2), zero),
+        torch.where(bad_rows, eil_bad_loss(pred, label_ctrl, b_m2), zero),
+        torch.where(int_rows, l_c, zero),
+    )
+
+
 def eil_loss(
     pred: Tensor,
     label_ctrl: Tensor,
@@ -116,29 +152,20 @@ def eil_loss(
     ranking_margin_m2: float = 0.0,
     ranking_weight: float = 0.0,
 ) -> EILLossTerms:
-    """The EIL objective on a mixed batch; `partition` holds PARTITION_CODES per row (see module
-    docstring)."""
-    if not threshold_b_m > 0.0:
-        raise LossInputError(f"threshold_b_m must be > 0, got {threshold_b_m}")
-    if partition.dim() != 1 or partition.size(0) != pred.size(0):
-        raise LossInputError(f"partition must have shape ({pred.size(0)},), got {tuple(partition.shape)}")
-    known = torch.tensor(sorted(PARTITION_CODES.values()), device=partition.device)
-    if not bool(torch.isin(partition, known).all()):
-        raise LossInputError(f"partition holds unknown codes: {sorted(set(partition.tolist()))}")
-    b_m2 = threshold_b_m**2
+    """The EIL objective on a mixed batch: the row terms of `eil_row_terms` summed over the batch and divided
+    by its size, lambda = `intervention_weight` on l_C."""
+    g, b, c = eil_row_terms(
+        pred,
+        label_ctrl,
+        partition,
+        threshold_b_m,
+        contrast_ctrl,
+        contrast_mask,
+        ranking_margin_m2,
+        ranking_weight,
+    )
     n = pred.size(0)
-    good_rows = partition == PARTITION_CODES[Partition.GOOD]
-    bad_rows = partition == PARTITION_CODES[Partition.BAD]
-    int_rows = (partition == PARTITION_CODES[Partition.INTERVENTION]) | (
-        partition == PARTITION_CODES[Partition.DEMO]
-    )
-    zero = pred.new_zeros(n)
-    good = torch.where(good_rows, eil_good_loss(pred, label_ctrl, b_m2), zero).sum() / n
-    bad = torch.where(bad_rows, eil_bad_loss(pred, label_ctrl, b_m2), zero).sum() / n
-    l_c = eil_intervention_loss(
-        pred, label_ctrl, contrast_ctrl, contrast_mask, ranking_margin_m2, ranking_weight
-    )
-    intervention = torch.where(int_rows, l_c, zero).sum() / n
+    good, bad, intervention = g.sum() / n, b.sum() / n, c.sum() / n
     total = good + bad + intervention_weight * intervention
     if not bool(torch.isfinite(total)):
         raise LossInputError("EIL loss is not finite")

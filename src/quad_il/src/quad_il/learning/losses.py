@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from typing import Literal
 
-import torch
 from torch import Tensor
 
 LossName = Literal["mse", "sse", "eil"]
@@ -54,26 +53,12 @@ def eil_per_sample(
     """EIL's objective per row (quad_il.imitation.losses, docs/imitation_learning.md "EIL") on flat B-spline
     vectors (B, 3K) in one frame: GOOD rows max(0, D - B), BAD rows max(0, B - D), DEMO/INTERVENTION rows
     lambda D, with D the mean squared control-point distance between the row's label and the prediction.
-    Their mean equals `eil_loss(...).total`."""
-    from quad_il.imitation.losses import (
-        eil_bad_loss,
-        eil_good_loss,
-        eil_intervention_loss,
-    )
-    from quad_il.imitation.types import PARTITION_CODES, Partition
+    Their mean equals `eil_loss(...).total` (both use `eil_row_terms`)."""
+    from quad_il.imitation.losses import eil_row_terms
 
     if pred.shape != target.shape or pred.dim() != 2 or pred.size(1) % 3 != 0:
         raise ValueError(
             f"EIL needs (B, 3K) predictions and labels, got {tuple(pred.shape)}, {tuple(target.shape)}"
         )
-    if partition.shape != (pred.size(0),):
-        raise ValueError(f"partition must have shape ({pred.size(0)},), got {tuple(partition.shape)}")
-    b_m2 = threshold_b_m**2
-    regression = intervention_weight * eil_intervention_loss(pred, target)
-    good = eil_good_loss(pred, target, b_m2)
-    bad = eil_bad_loss(pred, target, b_m2)
-    return torch.where(
-        partition == PARTITION_CODES[Partition.GOOD],
-        good,
-        torch.where(partition == PARTITION_CODES[Partition.BAD], bad, regression),
-    )
+    good, bad, intervention = eil_row_terms(pred, target, partition, threshold_b_m)
+    return good + bad + intervention_weight * intervention
