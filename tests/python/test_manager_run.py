@@ -325,6 +325,31 @@ def test_resuming_with_a_changed_config_is_refused_unless_allowed(tmp_path: Path
     assert list(run.glob("config.*.yaml"))
 
 
+def test_redo_from_moves_later_rounds_aside_and_runs_them_again(tmp_path: Path) -> None:
+    cfg, run, _ = make_config(tmp_path)
+    assert run_manager(cfg)[0] == 0
+    first = state(run)["rounds"]["000"]["stages"]["collect"]["finished"]
+    marker = run / "round_001" / "data" / "old.txt"
+    marker.write_text("kept")
+    rc, out = run_manager(cfg, "--redo-from", "1")
+    assert rc == 0, out
+    st = state(run)
+    assert st["completed_rounds"] == [0, 1]
+    assert st["rounds"]["000"]["stages"]["collect"]["finished"] == first  # round 0 untouched
+    assert st["rounds"]["001"]["stages"]["collect"]["attempts"] == 1  # round 1 started afresh
+    discarded = list(run.glob("round_001.discarded-*"))
+    assert len(discarded) == 1 and (discarded[0] / "data" / "old.txt").read_text() == "kept"
+    assert not (run / "round_001" / "data" / "old.txt").exists()
+    assert "rounds [1] discarded" in (run / "manager.log").read_text()
+
+
+def test_redo_from_a_round_the_config_does_not_have_is_refused(tmp_path: Path) -> None:
+    cfg, run, _ = make_config(tmp_path)
+    rc, out = run_manager(cfg, "--redo-from", "2")
+    assert rc == 2 and "--redo-from 2: the config has rounds 0..1 (rounds.count 2)" in out
+    assert not (run / "state.json").exists()
+
+
 def test_config_errors_exit_2_naming_the_key(tmp_path: Path) -> None:
     cfg, run, _ = make_config(tmp_path, rounds={"count": 1, "initial_polcy": "x"})
     rc, out = run_manager(cfg)

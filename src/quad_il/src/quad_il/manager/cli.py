@@ -30,6 +30,13 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="resume even though the config differs from the one the run started with (the old one is kept)",
     )
+    p.add_argument(
+        "--redo-from",
+        type=int,
+        metavar="ROUND",
+        help="discard rounds ROUND, ROUND+1, ... of an existing run (their directories are moved aside as "
+        "round_NNN.discarded-<time>, never deleted) and run them again; the rounds before are kept",
+    )
     p.add_argument("--check", action="store_true", help="validate the config and exit")
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     return p
@@ -53,7 +60,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         return 0
     try:
-        return PipelineRunner(cfg, text, args.config, args.allow_config_change).run()
+        return PipelineRunner(cfg, text, args.config, args.allow_config_change, args.redo_from).run()
     except (ManagerError, StateError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

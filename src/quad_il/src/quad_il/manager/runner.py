@@ -96,9 +96,20 @@ def port_accepts(port: int) -> bool:
 
 class PipelineRunner:
     def __init__(
-        self, cfg: ManagerConfig, config_text: str, config_path: Path, allow_config_change: bool = False
+        self,
+        cfg: ManagerConfig,
+        config_text: str,
+        config_path: Path,
+        allow_config_change: bool = False,
+        redo_from: int | None = None,
     ) -> None:
+        if redo_from is not None and not 0 <= redo_from < cfg.rounds.count:
+            raise ManagerError(
+                f"--redo-from {redo_from}: the config has rounds 0..{cfg.rounds.count - 1} (rounds.count "
+                f"{cfg.rounds.count})"
+            )
         self.cfg = cfg
+        self.redo_from = redo_from
         self.config_text = config_text
         self.config_dir = config_path.resolve().parent
         self.allow_config_change = allow_config_change
@@ -417,6 +428,8 @@ class PipelineRunner:
                 for st in stages.values():
                     if st.status is Status.RUNNING:
                         st.status, st.reason = Status.INTERRUPTED, "manager ended without closing the stage"
+            if self.redo_from is not None:
+                self._discard_rounds(state, self.redo_from)
         else:
             state = RunState(config_sha256=digest)
         if not self.layout.config.exists():
@@ -424,6 +437,20 @@ class PipelineRunner:
         state.finished = False
         state.save(self.layout.state)
         return state
+
+    def _discard_rounds(self, state: RunState, first: int) -> None:
+        """`--redo-from`: move round directories >= `first` aside and forget their state (under the lock)."""
+        stamp = time.strftime("%Y%m%d-%H%M%S")
+        moved = []
+        for path in sorted(self.layout.run_dir.glob("round_[0-9][0-9][0-9]")):
+            index = int(path.name[len("round_") :])
+            if index >= first:
+                target = path.with_name(f"{path.name}.discarded-{stamp}")
+                os.replace(path, target)
+                moved.append(target.name)
+        dropped = state.discard_rounds_from(first)
+        state.save(self.layout.state)
+        log.warning("--redo-from %d: rounds %s discarded; directories moved to %s", first, dropped, moved)
 
     def _acquire_lock(self) -> None:
         fd = os.open(self.layout.lock, os.O_RDWR | os.O_CREAT, 0o644)

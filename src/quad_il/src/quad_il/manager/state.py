@@ -18,6 +18,7 @@ Layout (docs/imitation_learning.md, "Run directory"):
         attempts/<stage>_NNN/  outputs of an interrupted or failed attempt of <stage>, moved aside (never
         deleted)
       round_001/ ...
+      round_001.discarded-YYYYmmdd-HHMMSS/   a round thrown away by `--redo-from 1`, moved aside (never deleted)
 """
 
 from __future__ import annotations
@@ -215,6 +216,22 @@ class RunState:
             "reason": reason,
             "time": s.finished,
         }
+
+    def discard_rounds_from(self, first: int) -> list[int]:
+        """Forget rounds `first`, `first`+1, ... (complete or not); returns the indices that had any state."""
+        dropped = sorted(i for i in set(self.rounds) | set(self.completed_rounds) if i >= first)
+        for i in dropped:
+            self.rounds.pop(i, None)
+        self.completed_rounds = [i for i in self.completed_rounds if i < first]
+        if dropped:
+            self.last_event = {
+                "round": first,
+                "stage": "",
+                "status": "discarded",
+                "reason": f"rounds {dropped} discarded to be redone",
+                "time": time.time(),
+            }
+        return dropped
 
     def complete_round(self, index: int) -> None:
         if index not in self.completed_rounds:
