@@ -18,6 +18,7 @@ from quad_il.imitation.ros_collector import (
     EpisodeBook,
     depth_from_msg,
     load_round_config,
+    perturb_spline,
     spline_from_msg,
 )
 from quad_il.imitation.wait_peers import missing_peers, parse_counts
@@ -38,6 +39,21 @@ def test_bspline_messages_convert_to_validated_actions() -> None:
         spline_from_msg(
             SimpleNamespace(order=3, traj_id=0, start_time=_time(0.0), knots=knots[:-1], pos_pts=pts)
         )
+
+
+def test_expert_noise_keeps_the_start_state_and_perturbs_the_rest() -> None:
+    ctrl = np.stack([np.arange(8.0), np.zeros(8), np.ones(8)], axis=1)
+    knots = np.arange(-0.3, 0.9, 0.1)[:12]
+    a = SplineAction(ctrl, knots, 3, 1.5, 9)
+    b = perturb_spline(a, 0.2, np.random.default_rng(0))
+    np.testing.assert_array_equal(b.ctrl_pts_world[:3], ctrl[:3])  # position, velocity, acceleration at t0
+    d = b.ctrl_pts_world[3:] - ctrl[3:]
+    assert np.all(d != 0.0) and 0.05 < d.std() < 0.4
+    np.testing.assert_array_equal(b.knots, a.knots)
+    assert (b.start_time_s, b.traj_id, b.order) == (1.5, 9, 3)
+    np.testing.assert_array_equal(perturb_spline(a, 0.0, np.random.default_rng(0)).ctrl_pts_world, ctrl)
+    with pytest.raises(ImitationError, match="expert noise std must be a finite number >= 0 m, got -0.1"):
+        perturb_spline(a, -0.1, np.random.default_rng(0))
 
 
 def test_depth_images_honour_the_row_stride_and_encoding() -> None:

@@ -25,7 +25,7 @@ from quad_il.imitation import (
 )
 from quad_il.imitation.config import MegaConflictConfig, MegaDAggerConfig
 from quad_il.imitation.learners import observation_features
-from quad_il.imitation.safety import SafetyParams, ScoreParams
+from quad_il.imitation.safety import SafetyParams, ScoreParams, WorldClearance
 
 H_S = 2.0
 WALL_X_M = 5.0
@@ -75,6 +75,20 @@ def test_point_cloud_clearance_is_distance_to_the_voxel_surface() -> None:
     c = wall().clearance_m(np.array([[0.0, 0.0, 1.0], [4.0, 0.3, 1.2], [5.0, 0.0, 1.0]]))
     np.testing.assert_allclose(c, [4.95, 0.95, 0.0], atol=1e-9)
     assert np.isinf(PointCloudClearance(np.zeros((0, 3)), 0.1).clearance_m(np.zeros((2, 3)))).all()
+
+
+def test_world_clearance_knows_nothing_before_a_map_and_follows_the_latest_world() -> None:
+    c = WorldClearance()
+    p = np.array([[0.0, 0.0, 1.0], [4.0, 0.3, 1.2]])
+    np.testing.assert_array_equal(c.clearance_m(p), [0.0, 0.0])  # no map yet: nothing counts as safe
+    assert c.queries_without_map == 1
+    c.update(wall())
+    np.testing.assert_allclose(c.clearance_m(p), [4.95, 0.95], atol=1e-9)
+    c.update(PointCloudClearance(np.array([[0.0, 0.0, 2.0]]), VOXEL_M))  # the next world replaces the wall
+    np.testing.assert_allclose(c.clearance_m(p[:1]), [0.95], atol=1e-9)
+    assert (c.updates, c.queries_without_map) == (2, 1)
+    learner = MegaDAggerLearner(0, np.random.default_rng(0), MegaDAggerConfig(experts=["a", "b"]), c)
+    assert learner.clearance is c
 
 
 def test_a_label_into_the_wall_is_unsafe_by_clearance() -> None:

@@ -16,7 +16,9 @@ Topics (private parameters in brackets):
        so the decision is applied before time advances)
 Parameters: ~round_config (the manager's round_XXX/algorithm.yaml), ~output_dir, ~episodes (stop after N
   episodes that received a goal), ~voxel_size_m (MEGA-DAgger's clearance map), ~source_consumers ({source:
-  FrameAck consumer}, default {expert: fast_planner, learner: policy}), ~ack_grace_s (0.25), ~pair_timeout_s
+  FrameAck consumer}, default {expert: fast_planner, learner: policy}), ~expert_noise_std_m ({expert: std in
+  metres}, default {}: Gaussian noise on an expert's control points, making it one of MEGA-DAgger's imperfect
+  experts; `perturb_spline`), ~ack_grace_s (0.25), ~pair_timeout_s
   (5.0), ~tracker_accept_timeout_s (1.0), ~odom_period_s (0.005), ~odom_wait_s (0.5: wait this long for the
   frame's odometry; 0: take the newest that has arrived), ~timing_log (CSV: depth stamp, odometry used, newest
   odometry received, clock delay; "" = none).
@@ -51,7 +53,7 @@ from quad_il.imitation.config import MegaDAggerConfig, RoundAlgorithmConfig
 from quad_il.imitation.dataset import write_episode
 from quad_il.imitation.learners import ImitationLearnerBase, make_learner
 from quad_il.imitation.pairing import PairedFrame, StampPairer
-from quad_il.imitation.safety import PointCloudClearance
+from quad_il.imitation.safety import PointCloudClearance, WorldClearance
 from quad_il.imitation.types import Controller, EpisodeOutcome, ImitationError, Observation, Pair, Record
 
 
@@ -73,6 +75,18 @@ def spline_from_msg(msg: Any) -> SplineAction | None:
         msg.start_time.to_sec(),
         int(msg.traj_id),
     )
+
+
+def perturb_spline(action: SplineAction, std_m: float, rng: np.random.Generator) -> SplineAction:
+    """An imperfect expert for MEGA-DAgger (`~expert_noise_std_m`): independent Gaussian noise of `std_m`
+    metres on every control point except the first `order` ones, which fix the plan's start state (position,
+    velocity, acceleration at the frame), so the noisy plan still starts where the vehicle is."""
+    if not np.isfinite(std_m) or std_m < 0.0:
+        raise ImitationError(f"expert noise std must be a finite number >= 0 m, got {std_m}")
+    ctrl = action.ctrl_pts_world.copy()
+    keep = min(int(action.order), len(ctrl))
+    ctrl[keep:] += rng.normal(0.0, std_m, size=ctrl[keep:].shape)
+    return SplineAction(ctrl, action.knots, action.order, action.start_time_s, action.traj_id)
 
 
 def depth_from_msg(msg: Any) -> np.ndarray:
@@ -206,6 +220,13 @@ def main() -> None:  # pragma: no cover - needs a ROS master; tests/rostest/il_d
     source_consumers: dict[str, str] = dict(
         rospy.get_param("~source_consumers", {"expert": "fast_planner", "learner": "policy"})
     )
+    expert_noise: dict[str, float] = {
+        str(k): float(v) for k, v in dict(rospy.get_param("~expert_noise_std_m", {})).items()
+    }
+    unknown = sorted(set(expert_noise) - set(expert_topics))
+    if unknown:
+        raise ImitationError(f"~expert_noise_std_m names {unknown}, which are not in ~expert_topics")
+    noise_rng = np.random.default_rng([cfg.seed, cfg.round_index, 1])
     ack_grace_s = float(rospy.get_param("~ack_grace_s", 0.25))
     pair_timeout_s = float(rospy.get_param("~pair_timeout_s", 5.0))
     accept_timeout_s = float(rospy.get_param("~tracker_accept_timeout_s", 1.0))
@@ -217,11 +238,18 @@ def main() -> None:  # pragma: no cover - needs a ROS master; tests/rostest/il_d
         if missing:
             raise ImitationError(f"~expert_topics lacks the MEGA-DAgger experts {missing}")
     primary = next(iter(expert_topics))
-    clearance = None
-    if isinstance(cfg.algorithm, MegaDAggerConfig):
-        cloud = rospy.wait_for_message("/sim/voxel_map", PointCloud2, timeout=30.0)
+    clearance: WorldClearance | None = None
+    voxel_size_m = float(rospy.get_param("~voxel_size_m", 0.1))
+
+    def clearance_from_cloud(cloud: Any) -> PointCloudClearance:
         pts = np.array(list(point_cloud2.read_points(cloud, field_names=("x", "y", "z"), skip_nans=True)))
-        clearance = PointCloudClearance(pts.reshape(-1, 3), float(rospy.get_param("~voxel_size_m", 0.1)))
+        return PointCloudClearance(pts.reshape(-1, 3), voxel_size_m)
+
+    if isinstance(cfg.algorithm, MegaDAggerConfig):
+        # The simulator publishes (latched) the voxel map of each world at its reset, before the episode's
+        # goal; on_voxel_map swaps it in. (Not waited for here: in lockstep the simulator starts only once
+        # this node subscribes to depth.)
+        clearance = WorldClearance()
     learner = make_learner(cfg, np.random.default_rng(cfg.seed), clearance)
     sources = [*expert_topics, "learner"] if not cfg.expert_only else list(expert_topics)
     consumer_source = {source_consumers[s]: s for s in sources if s in source_consumers}
@@ -244,6 +272,8 @@ def main() -> None:  # pragma: no cover - needs a ROS master; tests/rostest/il_d
         "pair_timeouts": 0,
         "acked_without_plan": 0,
         "tracker_accept_timeouts": 0,
+        "voxel_maps": 0,
+        "label_checks_without_map": 0,
     }
     state: dict[str, Any] = {"interrupted": False, "done": False}
     timing_fh = open(timing_path, "w", newline="") if timing_path else None  # noqa: SIM115
@@ -404,6 +434,9 @@ def main() -> None:  # pragma: no cover - needs a ROS master; tests/rostest/il_d
                 if not core.pairer.waiting_for(source, t):
                     counters["unpaired_plans"] += 1  # its frame was skipped (no goal yet) or completed
                     return
+                if action is not None and expert_noise.get(source, 0.0) > 0.0:
+                    # under the lock: the generator is shared by the experts' subscriber threads
+                    action = perturb_spline(action, expert_noise[source], noise_rng)
                 act(core.pairer.add_action(source, t, action))
 
         return cb
@@ -476,6 +509,8 @@ def main() -> None:  # pragma: no cover - needs a ROS master; tests/rostest/il_d
                 book.episode_id = None
             if timing_fh is not None:
                 timing_fh.close()
+            if clearance is not None:
+                counters["label_checks_without_map"] = clearance.queries_without_map
             write_json_atomic(
                 output_dir / "collector_manifest.json",
                 {
@@ -491,7 +526,16 @@ def main() -> None:  # pragma: no cover - needs a ROS master; tests/rostest/il_d
                 },
             )
 
+    def on_voxel_map(msg: Any) -> None:
+        fresh = clearance_from_cloud(msg)  # outside the lock: building the map takes a while
+        with lock:
+            if clearance is not None:
+                clearance.update(fresh)
+                counters["voxel_maps"] = clearance.updates
+
     rospy.on_shutdown(finalise)
+    if clearance is not None:
+        rospy.Subscriber("/sim/voxel_map", PointCloud2, on_voxel_map, queue_size=1, buff_size=2**24)
     rospy.Subscriber("/odom", Odometry, on_odom, queue_size=400, tcp_nodelay=True)
     rospy.Subscriber("/planner/goal", PoseStamped, on_goal, queue_size=5)
     rospy.Subscriber("/sim/status", EpisodeStatus, on_status, queue_size=20)

@@ -66,6 +66,27 @@ class PointCloudClearance:
         return np.maximum(0.0, dist - 0.5 * self.voxel_size_m)
 
 
+class WorldClearance:
+    """The clearance of whichever world is current: the collector `update`s it with each world's map (the
+    simulator publishes one at every reset). Before the first map nothing is known, so every point has
+    clearance 0 (every label is unsafe) and `queries_without_map` counts the queries."""
+
+    def __init__(self) -> None:
+        self._map: ClearanceMap | None = None
+        self.updates = 0
+        self.queries_without_map = 0
+
+    def update(self, world: ClearanceMap) -> None:
+        self._map = world
+        self.updates += 1
+
+    def clearance_m(self, points_world: FloatArray) -> FloatArray:
+        if self._map is None:
+            self.queries_without_map += 1
+            return np.zeros(np.asarray(points_world).reshape(-1, 3).shape[0])
+        return self._map.clearance_m(points_world)
+
+
 @dataclass(frozen=True)
 class SafetyParams:
     min_clearance_m: float = 0.3

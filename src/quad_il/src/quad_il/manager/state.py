@@ -18,7 +18,7 @@ Layout (docs/imitation_learning.md, "Run directory"):
         attempts/<stage>_NNN/  outputs of an interrupted or failed attempt of <stage>, moved aside (never
         deleted)
       round_001/ ...
-      round_001.discarded-YYYYmmdd-HHMMSS/   a round thrown away by `--redo-from 1`, moved aside (never deleted)
+      round_001.discarded-YYYYmmdd-HHMMSS/   a round thrown away by `--redo-from 1` (moved, never deleted)
 """
 
 from __future__ import annotations

@@ -1,0 +1,69 @@
+#!/usr/bin/env python3
+"""rostest node of il_mega_round.test: waits for the imitation collector's manifest and checks one MEGA-DAgger
+round with two experts in the loop (the simulator waited for both experts' acknowledgements, and the collector
+paired both experts' plans with each frame the learner saw, else the learner raises): the gate handed control
+to an expert, every record is an INTERVENTION labelled by expert_a or expert_b from exactly its frame, with a
+finite score and a clearance above the safety threshold, the collector received the worlds' voxel maps, and
+the episode files are complete and convert to the trainer's npz contract."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+import unittest
+from pathlib import Path
+
+import numpy as np
+import rospy
+import rostest
+
+from quad_il.imitation.convert import collect_records, records_to_npz_arrays
+from quad_il.imitation.dataset import list_episodes, read_episode
+from quad_il.imitation.types import Controller, Partition
+
+
+class MegaRound(unittest.TestCase):
+    def test_one_round(self) -> None:
+        data = Path(rospy.get_param("~data_dir"))
+        episodes = int(rospy.get_param("~episodes"))
+        manifest = data / "collector_manifest.json"
+        deadline = time.monotonic() + 140.0
+        while not manifest.is_file() and time.monotonic() < deadline and not rospy.is_shutdown():
+            time.sleep(0.2)
+        self.assertTrue(manifest.is_file(), f"no {manifest}: the collector did not finish its episodes")
+        m = json.loads(manifest.read_text())
+        self.assertFalse(m["interrupted"])
+        self.assertEqual(m["episodes"], episodes)
+        self.assertEqual(m["round_config"]["algorithm"]["name"], "mega_dagger")
+        stats = m["stats"]
+        self.assertGreater(stats["interventions"], 0, m)
+        self.assertGreater(stats["steps_expert"], 0, m)
+        # The collector starts with the current world's map and takes each later world's.
+        self.assertGreaterEqual(m["collector"]["voxel_maps"], 1, m)
+        self.assertGreater(m["records"], 5, m)
+        self.assertEqual(m["records"], stats["records"]["intervention"])
+        files, partial = list_episodes(data)
+        self.assertEqual(partial, [])
+        n = 0
+        for f in files:
+            recs = read_episode(f)
+            n += len(recs)
+            for r in recs:
+                self.assertEqual(r.partition, Partition.INTERVENTION)
+                self.assertIn(r.source, ("expert_a", "expert_b"))
+                self.assertEqual(r.controller, Controller.EXPERT)
+                self.assertEqual(round(r.label.start_time_s * 1e9), round(r.obs.stamp_s * 1e9))
+                self.assertTrue(np.isfinite(r.score))
+                self.assertGreaterEqual(r.min_clearance_m, 0.3)  # the safety filter's threshold
+        self.assertEqual(n, m["records"])
+        records, _ = collect_records([data])
+        arrays = records_to_npz_arrays(records)
+        self.assertEqual(len(arrays), n)
+        self.assertTrue(np.isfinite(arrays.bspline_ctrl_world).all())
+        shutil.rmtree(data.parent, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    rospy.init_node("il_mega_round_check")
+    rostest.rosrun("quad_il", "il_mega_round", MegaRound)
