@@ -6,7 +6,10 @@
 A run is an `imitation_learning_manager.py` run directory: round r's `metrics/cpp.jsonl` is the evaluation of
 the policy trained after round r (policy generation r + 1). A baseline is a `run_eval` output directory
 (its `cpp.jsonl`): generation 0, the policy every run started from. Per (algorithm, generation): episodes,
-success, collision and timeout rates, and from the round's data the records and who flew them. Output:
+success, collision and timeout rates; how the episodes failed (median closest approach to the goal and median
+highest altitude, from the recorded trajectories and the evaluation's `episodes.json`; the share of the
+policy's decisions refused by the depth check and by the acceleration limit); and from the round's data the
+records and who flew them. Output:
 `comparison.md` (table and the command), `comparison.json`, `comparison.png` (success and collision rate per
 generation, one line per algorithm). Rounds without an evaluation yet are left out (and listed).
 """
@@ -15,11 +18,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from quad_il.evaluation.episodes import read_results
+from quad_il.evaluation.episodes import EpisodeResult, read_episodes, read_results
 from quad_il.evaluation.metrics import summarise
 
 
@@ -35,6 +39,10 @@ class GenerationRow:
     success_rate: float
     collision_rate: float
     timeout_rate: float
+    median_closest_m: float  # median over episodes of the smallest distance to the goal (NaN: no goals known)
+    median_highest_m: float  # median over episodes of the highest altitude flown
+    refused_depth: float  # share of the policy's decisions refused by the depth check
+    refused_accel: float  # ... by the acceleration limit
     records: int | None  # the round's recorded rows (None for the baseline)
     expert_steps: int | None
     learner_steps: int | None
@@ -47,6 +55,7 @@ def _summary_row(
     if not results:
         raise CompareError(f"{jsonl}: no evaluation episodes")
     s = summarise(controller, results)
+    closest, highest, depth, accel = failure_modes(results, jsonl.parent / "episodes.json")
     records = expert = learner = None
     if data_dir is not None and data_dir.is_dir():
         records, expert, learner = _round_steps(data_dir)
@@ -57,10 +66,55 @@ def _summary_row(
         s.success_rate,
         s.collision_rate,
         s.timeout_rate,
+        closest,
+        highest,
+        depth,
+        accel,
         records,
         expert,
         learner,
     )
+
+
+# The safety layer's verdicts (inference.safety.SafetyVerdict labels): a decision is a network output judged.
+VERDICTS = (
+    "accepted",
+    "non_finite_output",
+    "velocity_limit",
+    "acceleration_limit",
+    "start_far_from_vehicle",
+    "collision_in_depth",
+)
+
+
+def _median(values: list[float]) -> float:
+    v = sorted(x for x in values if math.isfinite(x))
+    if not v:
+        return math.nan
+    m = len(v) // 2
+    return v[m] if len(v) % 2 else 0.5 * (v[m - 1] + v[m])
+
+
+def failure_modes(results: list[EpisodeResult], episodes_json: Path) -> tuple[float, float, float, float]:
+    """(median closest approach to the goal, median highest altitude, share of decisions refused by the depth
+    check, share refused by the acceleration limit). Goals come from `episodes_json` (run_eval's list of
+    episodes, matched by index); without it the closest approach is NaN."""
+    goals = {}
+    if episodes_json.is_file():
+        goals = {e.index: e.goal_world for e in read_episodes(episodes_json)}
+    closest, highest = [], []
+    for r in results:
+        if not r.trajectory:
+            continue
+        highest.append(max(p[3] for p in r.trajectory))
+        g = goals.get(r.index)
+        if g is not None:
+            closest.append(min(math.dist(p[1:4], g) for p in r.trajectory))
+    decisions = sum(r.counts.get(v, 0) for r in results for v in VERDICTS)
+    depth = sum(r.counts.get("collision_in_depth", 0) for r in results)
+    accel = sum(r.counts.get("acceleration_limit", 0) for r in results)
+    share = (lambda n: n / decisions) if decisions else (lambda n: math.nan)
+    return _median(closest), _median(highest), share(depth), share(accel)
 
 
 def _round_steps(data_dir: Path) -> tuple[int, int, int]:
@@ -101,7 +155,11 @@ def baseline_row(algorithm: str, eval_dir: Path, controller: str = "cpp") -> Gen
 
 
 def _pct(x: float) -> str:
-    return f"{100.0 * x:.0f} %"
+    return "-" if math.isnan(x) else f"{100.0 * x:.0f} %"
+
+
+def _m(x: float) -> str:
+    return "-" if math.isnan(x) else f"{x:.1f} m"
 
 
 def write_comparison(
@@ -116,18 +174,22 @@ def write_comparison(
         "Generation 0 is the starting policy; generation r + 1 the policy trained after round r (on the",
         "starting data plus rounds 0..r). Round records: the rows the round recorded (HG-DAgger keeps only",
         "expert-controlled steps), and who flew those steps (the expert flies a DAgger step with beta = 0",
-        "only when the learner has no plan for it).",
+        "only when the learner has no plan for it). Closest approach to the goal and highest altitude:",
+        "medians over the episodes; refused: the share of the policy's decisions refused by the depth check",
+        "and by the acceleration limit.",
         "",
-        "| algorithm | generation | episodes | success | collision | timeout | round records "
+        "| algorithm | generation | episodes | success | collision | timeout | median closest approach "
+        "| median highest altitude | refused: depth / accel. | round records "
         "| recorded steps flown by expert / learner |",
-        "|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     all_rows = list(baselines) + [r for rows in runs.values() for r in rows]
     for r in all_rows:
         steps = "-" if r.records is None else f"{r.expert_steps} / {r.learner_steps}"
         lines.append(
             f"| {r.algorithm} | {r.generation} | {r.episodes} | {_pct(r.success_rate)} | "
-            f"{_pct(r.collision_rate)} | {_pct(r.timeout_rate)} | "
+            f"{_pct(r.collision_rate)} | {_pct(r.timeout_rate)} | {_m(r.median_closest_m)} | "
+            f"{_m(r.median_highest_m)} | {_pct(r.refused_depth)} / {_pct(r.refused_accel)} | "
             f"{'-' if r.records is None else r.records} | {steps} |"
         )
     lines += ["", "![success and collision rate per generation](comparison.png)", ""]
