@@ -8,33 +8,23 @@ the episode files are complete and convert to the trainer's npz contract."""
 
 from __future__ import annotations
 
-import json
 import shutil
-import time
 import unittest
 from pathlib import Path
 
 import numpy as np
 import rospy
 import rostest
+from il_round_common import check_converts, complete_episode_files, wait_for_manifest
 
-from quad_il.imitation.convert import collect_records, records_to_npz_arrays
-from quad_il.imitation.dataset import list_episodes, read_episode
+from quad_il.imitation.dataset import read_episode
 from quad_il.imitation.types import Controller, Partition
 
 
 class MegaRound(unittest.TestCase):
     def test_one_round(self) -> None:
         data = Path(rospy.get_param("~data_dir"))
-        episodes = int(rospy.get_param("~episodes"))
-        manifest = data / "collector_manifest.json"
-        deadline = time.monotonic() + 140.0
-        while not manifest.is_file() and time.monotonic() < deadline and not rospy.is_shutdown():
-            time.sleep(0.2)
-        self.assertTrue(manifest.is_file(), f"no {manifest}: the collector did not finish its episodes")
-        m = json.loads(manifest.read_text())
-        self.assertFalse(m["interrupted"])
-        self.assertEqual(m["episodes"], episodes)
+        m = wait_for_manifest(self, data, int(rospy.get_param("~episodes")))
         self.assertEqual(m["round_config"]["algorithm"]["name"], "mega_dagger")
         stats = m["stats"]
         self.assertGreater(stats["interventions"], 0, m)
@@ -43,8 +33,7 @@ class MegaRound(unittest.TestCase):
         self.assertGreaterEqual(m["collector"]["voxel_maps"], 1, m)
         self.assertGreater(m["records"], 5, m)
         self.assertEqual(m["records"], stats["records"]["intervention"])
-        files, partial = list_episodes(data)
-        self.assertEqual(partial, [])
+        files = complete_episode_files(self, data)
         n = 0
         for f in files:
             recs = read_episode(f)
@@ -57,10 +46,7 @@ class MegaRound(unittest.TestCase):
                 self.assertTrue(np.isfinite(r.score))
                 self.assertGreaterEqual(r.min_clearance_m, 0.3)  # the safety filter's threshold
         self.assertEqual(n, m["records"])
-        records, _ = collect_records([data])
-        arrays = records_to_npz_arrays(records)
-        self.assertEqual(len(arrays), n)
-        self.assertTrue(np.isfinite(arrays.bspline_ctrl_world).all())
+        check_converts(self, data, n)
         shutil.rmtree(data.parent, ignore_errors=True)
 
 

@@ -19,12 +19,14 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import statistics
 import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from quad_il.evaluation.episodes import EpisodeResult, read_episodes, read_results
 from quad_il.evaluation.metrics import summarise
+from quad_il.inference.safety import SafetyVerdict
 
 
 class CompareError(ValueError):
@@ -76,23 +78,13 @@ def _summary_row(
     )
 
 
-# The safety layer's verdicts (inference.safety.SafetyVerdict labels): a decision is a network output judged.
-VERDICTS = (
-    "accepted",
-    "non_finite_output",
-    "velocity_limit",
-    "acceleration_limit",
-    "start_far_from_vehicle",
-    "collision_in_depth",
-)
+# A decision is a network output the safety layer judged: its verdict is counted under one of these names.
+VERDICTS = tuple(v.label for v in SafetyVerdict)
 
 
 def _median(values: list[float]) -> float:
-    v = sorted(x for x in values if math.isfinite(x))
-    if not v:
-        return math.nan
-    m = len(v) // 2
-    return v[m] if len(v) % 2 else 0.5 * (v[m - 1] + v[m])
+    finite = [x for x in values if math.isfinite(x)]
+    return statistics.median(finite) if finite else math.nan
 
 
 def failure_modes(results: list[EpisodeResult], episodes_json: Path) -> tuple[float, float, float, float]:
