@@ -17,6 +17,7 @@ from quad_il.imitation.ros_collector import (
     CollectorCore,
     EpisodeBook,
     depth_from_msg,
+    expert_noise_from_param,
     load_round_config,
     perturb_spline,
     spline_from_msg,
@@ -54,6 +55,22 @@ def test_expert_noise_keeps_the_start_state_and_perturbs_the_rest() -> None:
     np.testing.assert_array_equal(perturb_spline(a, 0.0, np.random.default_rng(0)).ctrl_pts_world, ctrl)
     with pytest.raises(ImitationError, match="expert noise std must be a finite number >= 0 m, got -0.1"):
         perturb_spline(a, -0.1, np.random.default_rng(0))
+
+
+def test_expert_noise_parameter_names_what_is_wrong() -> None:
+    topics = {"expert_a": "/a", "expert_b": "/b"}
+    assert expert_noise_from_param({}, topics) == {}
+    assert expert_noise_from_param({"expert_b": 0.15}, topics) == {"expert_b": 0.15}
+    with pytest.raises(
+        ImitationError, match=r"names 'expert_c', which is not in ~expert_topics \['expert_a'"
+    ):
+        expert_noise_from_param({"expert_c": 0.1}, topics)
+    with pytest.raises(ImitationError, match=r"\['expert_a'\] must be finite and >= 0 m, got -1"):
+        expert_noise_from_param({"expert_a": -1}, topics)
+    with pytest.raises(ImitationError, match=r"must be a number of metres, got 'lots'"):
+        expert_noise_from_param({"expert_a": "lots"}, topics)
+    with pytest.raises(ImitationError, match=r"must be a mapping \{expert: metres\}, got 0.1"):
+        expert_noise_from_param(0.1, topics)
 
 
 def test_depth_images_honour_the_row_stride_and_encoding() -> None:

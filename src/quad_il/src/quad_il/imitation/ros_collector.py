@@ -39,6 +39,7 @@ went silent. Frames outside an episode or before the episode's goal are acknowle
 from __future__ import annotations
 
 import json
+import math
 import os
 import tempfile
 import threading
@@ -87,6 +88,28 @@ def perturb_spline(action: SplineAction, std_m: float, rng: np.random.Generator)
     keep = min(int(action.order), len(ctrl))
     ctrl[keep:] += rng.normal(0.0, std_m, size=ctrl[keep:].shape)
     return SplineAction(ctrl, action.knots, action.order, action.start_time_s, action.traj_id)
+
+
+def expert_noise_from_param(value: Any, expert_topics: dict[str, str]) -> dict[str, float]:
+    """`~expert_noise_std_m` checked: a mapping from expert names of `~expert_topics` to standard deviations
+    (metres, finite, >= 0)."""
+    if not isinstance(value, dict):
+        raise ImitationError(f"~expert_noise_std_m must be a mapping {{expert: metres}}, got {value!r}")
+    out = {}
+    for name, std in value.items():
+        if name not in expert_topics:
+            raise ImitationError(
+                f"~expert_noise_std_m names {name!r}, which is not in ~expert_topics {sorted(expert_topics)}"
+            )
+        try:
+            out[str(name)] = float(std)
+        except (TypeError, ValueError):
+            raise ImitationError(
+                f"~expert_noise_std_m[{name!r}] must be a number of metres, got {std!r}"
+            ) from None
+        if not math.isfinite(out[str(name)]) or out[str(name)] < 0.0:
+            raise ImitationError(f"~expert_noise_std_m[{name!r}] must be finite and >= 0 m, got {std!r}")
+    return out
 
 
 def depth_from_msg(msg: Any) -> np.ndarray:
@@ -220,12 +243,7 @@ def main() -> None:  # pragma: no cover - needs a ROS master; tests/rostest/il_d
     source_consumers: dict[str, str] = dict(
         rospy.get_param("~source_consumers", {"expert": "fast_planner", "learner": "policy"})
     )
-    expert_noise: dict[str, float] = {
-        str(k): float(v) for k, v in dict(rospy.get_param("~expert_noise_std_m", {})).items()
-    }
-    unknown = sorted(set(expert_noise) - set(expert_topics))
-    if unknown:
-        raise ImitationError(f"~expert_noise_std_m names {unknown}, which are not in ~expert_topics")
+    expert_noise = expert_noise_from_param(rospy.get_param("~expert_noise_std_m", {}), expert_topics)
     noise_rng = np.random.default_rng([cfg.seed, cfg.round_index, 1])
     ack_grace_s = float(rospy.get_param("~ack_grace_s", 0.25))
     pair_timeout_s = float(rospy.get_param("~pair_timeout_s", 5.0))
