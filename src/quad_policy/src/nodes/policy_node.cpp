@@ -22,6 +22,7 @@
 #include <tf2_ros/transform_listener.h>
 
 #include <quad_common/strict_yaml.h>
+#include <quad_policy/abi.h>
 #include <quad_policy/config.h>
 #include <quad_policy/policy_decider.h>
 #include <quad_policy/torch_policy.h>
@@ -54,6 +55,7 @@ struct OdomSample {
 class PolicyNode {
  public:
   PolicyNode() : nh_(), pnh_("~"), tf_listener_(tf_buffer_) {
+    quad_policy::CheckLibraryLayout();  // before any call that passes the library's types
     std::string config_path;
     if (!pnh_.getParam("config", config_path))
       throw std::runtime_error("private parameter ~config is required");
