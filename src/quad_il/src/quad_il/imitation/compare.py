@@ -82,6 +82,16 @@ def _summary_row(
 VERDICTS = tuple(v.label for v in SafetyVerdict)
 
 
+def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """95 % Wilson score interval of a success rate (z = 1.96): with 10 episodes, 2 successes give 6-51 %."""
+    if n <= 0:
+        return math.nan, math.nan
+    p = successes / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z / (1 + z * z / n) * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
 def _median(values: list[float]) -> float:
     finite = [x for x in values if math.isfinite(x)]
     return statistics.median(finite) if finite else math.nan
@@ -166,20 +176,23 @@ def write_comparison(
         "Generation 0 is the starting policy; generation r + 1 the policy trained after round r (on the",
         "starting data plus rounds 0..r). Round records: the rows the round recorded (HG-DAgger keeps only",
         "expert-controlled steps), and who flew those steps (the expert flies a DAgger step with beta = 0",
-        "only when the learner has no plan for it). Closest approach to the goal and highest altitude:",
+        "only when the learner has no plan for it). Success CI: the 95 % Wilson score interval of the rate.",
+        "Closest approach to the goal and highest altitude:",
         "medians over the episodes; refused: the share of the policy's decisions refused by the depth check",
         "and by the acceleration limit.",
         "",
-        "| algorithm | generation | episodes | success | collision | timeout | median closest approach "
-        "| median highest altitude | refused: depth / accel. | round records "
+        "| algorithm | generation | episodes | success (95 % CI) | collision | timeout "
+        "| median closest approach | median highest altitude | refused: depth / accel. | round records "
         "| recorded steps flown by expert / learner |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     all_rows = list(baselines) + [r for rows in runs.values() for r in rows]
     for r in all_rows:
         steps = "-" if r.records is None else f"{r.expert_steps} / {r.learner_steps}"
+        lo, hi = wilson_interval(round(r.success_rate * r.episodes), r.episodes)
         lines.append(
-            f"| {r.algorithm} | {r.generation} | {r.episodes} | {_pct(r.success_rate)} | "
+            f"| {r.algorithm} | {r.generation} | {r.episodes} | {_pct(r.success_rate)} "
+            f"({100 * lo:.0f}-{100 * hi:.0f} %) | "
             f"{_pct(r.collision_rate)} | {_pct(r.timeout_rate)} | {_m(r.median_closest_m)} | "
             f"{_m(r.median_highest_m)} | {_pct(r.refused_depth)} / {_pct(r.refused_accel)} | "
             f"{'-' if r.records is None else r.records} | {steps} |"
