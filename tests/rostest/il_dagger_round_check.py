@@ -12,9 +12,8 @@ from pathlib import Path
 
 import rospy
 import rostest
-from il_round_common import check_converts, complete_episode_files, wait_for_manifest
+from il_round_common import check_converts, episode_records, wait_for_manifest
 
-from quad_il.imitation.dataset import read_episode
 from quad_il.imitation.types import Controller, Partition
 
 
@@ -28,11 +27,9 @@ class DaggerRound(unittest.TestCase):
         self.assertLessEqual(stats["steps_expert"], stats["missing_learner"], m)
         self.assertGreater(m["records"], 20, m)
         self.assertEqual(m["records"], stats["records"]["demo"])
-        files = complete_episode_files(self, data)
-        n = 0
-        for f in files:
-            recs = read_episode(f)
-            n += len(recs)
+        episodes = episode_records(self, data)
+        n = sum(len(recs) for recs in episodes)
+        for recs in episodes:
             for r in recs:
                 self.assertEqual(r.partition, Partition.DEMO)
                 self.assertEqual(r.source, "expert")

@@ -15,9 +15,8 @@ from pathlib import Path
 import numpy as np
 import rospy
 import rostest
-from il_round_common import check_converts, complete_episode_files, wait_for_manifest
+from il_round_common import check_converts, episode_records, wait_for_manifest
 
-from quad_il.imitation.dataset import read_episode
 from quad_il.imitation.types import Controller, Partition
 
 
@@ -33,11 +32,9 @@ class MegaRound(unittest.TestCase):
         self.assertGreaterEqual(m["collector"]["voxel_maps"], 1, m)
         self.assertGreater(m["records"], 5, m)
         self.assertEqual(m["records"], stats["records"]["intervention"])
-        files = complete_episode_files(self, data)
-        n = 0
-        for f in files:
-            recs = read_episode(f)
-            n += len(recs)
+        episodes = episode_records(self, data)
+        n = sum(len(recs) for recs in episodes)
+        for recs in episodes:
             for r in recs:
                 self.assertEqual(r.partition, Partition.INTERVENTION)
                 self.assertIn(r.source, ("expert_a", "expert_b"))

@@ -14,7 +14,8 @@ import numpy as np
 import rospy
 
 from quad_il.imitation.convert import collect_records, records_to_npz_arrays
-from quad_il.imitation.dataset import list_episodes
+from quad_il.imitation.dataset import list_episodes, read_episode
+from quad_il.imitation.types import Record
 
 
 def wait_for_manifest(
@@ -32,11 +33,12 @@ def wait_for_manifest(
     return m
 
 
-def complete_episode_files(test: unittest.TestCase, data: Path) -> list[Path]:
+def episode_records(test: unittest.TestCase, data: Path) -> list[list[Record]]:
+    """The records of each episode file, once every file is complete (no partial file left)."""
     files, partial = list_episodes(data)
     test.assertEqual(partial, [])
     test.assertGreaterEqual(len(files), 1)
-    return files
+    return [read_episode(f) for f in files]
 
 
 def check_converts(test: unittest.TestCase, data: Path, n_records: int) -> None:

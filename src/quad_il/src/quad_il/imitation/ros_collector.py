@@ -528,6 +528,7 @@ def main() -> None:  # pragma: no cover - needs a ROS master; tests/rostest/il_d
             if timing_fh is not None:
                 timing_fh.close()
             if clearance is not None:
+                counters["voxel_maps"] = clearance.updates
                 counters["label_checks_without_map"] = clearance.queries_without_map
             write_json_atomic(
                 output_dir / "collector_manifest.json",
@@ -549,7 +550,6 @@ def main() -> None:  # pragma: no cover - needs a ROS master; tests/rostest/il_d
         with lock:
             if clearance is not None:
                 clearance.update(fresh)
-                counters["voxel_maps"] = clearance.updates
 
     rospy.on_shutdown(finalise)
     if clearance is not None:
