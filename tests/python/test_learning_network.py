@@ -12,7 +12,14 @@ import pytest
 import torch
 
 from quad_il.learning.config import ModelConfig
-from quad_il.learning.export import META_FILE, export_torchscript, load_exported, policy_metadata
+from quad_il.learning.export import (
+    META_FILE,
+    export_torchscript,
+    fold_backbone_head,
+    inference_module,
+    load_exported,
+    policy_metadata,
+)
 from quad_il.learning.mobilenet_v3 import MobileNetV3, adapt_stem_channels, count_parameters
 from quad_il.learning.model import Policy, PolicyNet, build_policy, mlp
 from quad_il.learning.preprocessing import (
@@ -405,10 +412,51 @@ def test_prior_is_not_in_the_state_dict_so_older_checkpoints_load() -> None:
 
 
 # ------------------------------------------------------------------------------------------------ TorchScript
+def make_backbone_head_matter(policy: Policy, seed: int) -> Policy:
+    """A trained-like state for fold and export tests (eval mode on return).
+
+    At initialisation the backbone's features are ~1e-10 in eval mode (unit running variances) and its last
+    Linear is N(0, 0.01) with zero bias, so a wrong fold of that layer (`fold_backbone_head`) would not show
+    in the outputs. Here the BatchNorm running statistics are set to the statistics of random batches and the
+    backbone's last Linear and depth_mlp[0] get larger random weights and non-zero biases.
+    """
+    gen = torch.Generator().manual_seed(seed)
+    h, w = policy.input_height, policy.input_width
+    bns = [m for m in policy.modules() if isinstance(m, torch.nn.BatchNorm2d)]
+    for bn in bns:
+        bn.reset_running_stats()
+        bn.momentum = None  # cumulative average over the passes below
+    policy.train()
+    with torch.no_grad():
+        for _ in range(3):
+            policy.forward_prepared(
+                torch.rand(8, 1, h, w, generator=gen),
+                torch.randn(8, 3, generator=gen),
+                torch.randn(8, 3, generator=gen),
+                torch.nn.functional.normalize(torch.randn(8, 4, generator=gen), dim=1),
+                torch.randn(8, 3, generator=gen),
+            )
+        for bn in bns:
+            bn.momentum = 0.01
+        last, first = policy.net.backbone.classifier[-1], policy.net.depth_mlp[0]
+        last.weight.normal_(0.0, 0.05, generator=gen)
+        last.bias.normal_(0.0, 0.5, generator=gen)
+        first.weight.normal_(0.0, 0.05, generator=gen)
+        first.bias.normal_(0.0, 0.2, generator=gen)
+    return policy.eval()
+
+
+def net_inputs(policy: Policy, b: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
+    gen = torch.Generator().manual_seed(seed)
+    depth_x = torch.rand(b, 1, policy.input_height, policy.input_width, generator=gen)
+    return depth_x, torch.randn(b, 13, generator=gen)
+
+
 @pytest.mark.parametrize(
     "kw",
     [
         {},
+        {"variant": "large"},
         {"state_frame": "local", "output_frame": "local", "output": "polynomial", "poly_degree": 4},
         {"state_frame": "local", "output_frame": "local", "output_prior": "constant_velocity"},
     ],
@@ -416,19 +464,7 @@ def test_prior_is_not_in_the_state_dict_so_older_checkpoints_load() -> None:
 def test_torchscript_export_equals_eager_policy(tmp_path: Path, kw: dict[str, object]) -> None:
     torch.manual_seed(2)
     cfg = ModelConfig(input_height=32, input_width=40, max_depth_m=8.0, **kw)
-    policy: Policy = build_policy(cfg, 10, 2.0)
-    # Train-mode BN statistics would be trivial; move them so eval mode is a real test of the export.
-    policy.train()
-    with torch.no_grad():
-        for _ in range(3):
-            policy.forward_prepared(
-                torch.rand(8, 1, 32, 40),
-                torch.randn(8, 3),
-                torch.randn(8, 3),
-                torch.nn.functional.normalize(torch.randn(8, 4), dim=1),
-                torch.randn(8, 3),
-            )
-    policy.eval()
+    policy: Policy = make_backbone_head_matter(build_policy(cfg, 10, 2.0), seed=3)
     gen = torch.Generator().manual_seed(5)
     b = 6
     depth = torch.rand(b, 60, 80, generator=gen) * 12
@@ -445,17 +481,171 @@ def test_torchscript_export_equals_eager_policy(tmp_path: Path, kw: dict[str, ob
     diff = export_torchscript(policy, path, meta, check_inputs=inputs)
     assert diff <= 1e-4
     module, loaded_meta = load_exported(path)
+    p, v, q, goal = inputs[1:]
     with torch.no_grad():
         torch.testing.assert_close(module(*inputs), policy(*inputs), atol=1e-5, rtol=1e-5)
         assert torch.equal(module.preprocess_depth(depth), policy.preprocess_depth(depth))
+        depth_x = policy.preprocess_depth(depth)
+        y = policy.forward_prepared(depth_x, p, v, q, goal)
+        y_file = module.forward_prepared(depth_x, p, v, q, goal)
+        assert float((y_file - y).abs().max()) <= 1e-4
+        # Channels-last input (what a channels_last training loop would pass) gives the same.
+        y_cl = module.forward_prepared(depth_x.contiguous(memory_format=torch.channels_last), p, v, q, goal)
+        torch.testing.assert_close(y_cl, y_file, atol=1e-6, rtol=1e-6)
+        ctrl = policy.decode(y, p, q)
+        torch.testing.assert_close(module.decode(y, p, q), ctrl, atol=1e-5, rtol=1e-5)
+        torch.testing.assert_close(module.encode_target(ctrl, p, q), policy.encode_target(ctrl, p, q))
     assert (module.input_height, module.input_width, module.max_depth_m) == (32, 40, 8.0)
     assert (module.num_ctrl_pts, module.horizon_s) == (10, 2.0)
+    assert loaded_meta == json.loads(json.dumps(meta))
     assert loaded_meta["preprocessing"]["input_width"] == 40
     assert loaded_meta["preprocessing"]["state_frame"] == kw.get("state_frame", "world")
     assert loaded_meta["output"]["num_ctrl_pts"] == 10
     extra = {META_FILE: ""}
     torch.jit.load(str(path), _extra_files=extra)
     assert json.loads(extra[META_FILE])["format"] == "quad_il_policy/1"
+    # The file holds the folded network: no 1000-wide layer, and channels_last convolution weights.
+    consts = [
+        n.output().toIValue()
+        for n in module.forward_prepared.graph.nodes()
+        if n.kind() == "prim::Constant" and n.output().type().kind() == "TensorType"
+    ]
+    assert not [t for t in consts if t.dim() == 2 and 1000 in t.shape]
+    hidden = 1280 if kw.get("variant") == "large" else 1024
+    assert [t for t in consts if t.dim() == 2 and tuple(t.shape) == (128, hidden)]
+    convs = [t for t in consts if t.dim() == 4]
+    assert convs and all(t.is_contiguous(memory_format=torch.channels_last) for t in convs)
+
+
+def test_export_check_compares_with_the_eager_unfolded_policy(tmp_path: Path) -> None:
+    """The check runs the reloaded file against the caller's policy, so a file that differs is refused."""
+    torch.manual_seed(4)
+    cfg = ModelConfig(input_height=32, input_width=32)
+    policy = make_backbone_head_matter(build_policy(cfg, 10, 2.0), seed=4)
+    inputs = (
+        torch.rand(2, 32, 32) * 5,
+        torch.randn(2, 3),
+        torch.randn(2, 3),
+        torch.nn.functional.normalize(torch.randn(2, 4), dim=1),
+        torch.randn(2, 3),
+    )
+    meta = policy_metadata(policy, cfg.model_dump(mode="json"))
+    assert export_torchscript(policy, tmp_path / "ok.ts", meta, inputs) <= 1e-4
+    with pytest.raises(RuntimeError, match="differs from the eager policy"):
+        export_torchscript(policy, tmp_path / "strict.ts", meta, inputs, tol=-1.0)
+
+
+@pytest.mark.parametrize(
+    ("variant", "backbone_out", "hidden"),
+    [("small", 1000, 1024), ("large", 1000, 1280), ("small", 256, 1024)],
+)
+def test_fold_backbone_head_equals_the_unfolded_network(variant: str, backbone_out: int, hidden: int) -> None:
+    torch.manual_seed(6)
+    cfg = ModelConfig(input_height=32, input_width=32, variant=variant, backbone_out=backbone_out)
+    policy = make_backbone_head_matter(build_policy(cfg, 10, 2.0), seed=7)
+    folded = fold_backbone_head(policy)
+    assert folded is not policy and not folded.training
+    assert isinstance(folded.net.backbone.classifier[-1], torch.nn.Identity)
+    layer = folded.net.depth_mlp[0]
+    assert isinstance(layer, torch.nn.Linear) and (layer.in_features, layer.out_features) == (hidden, 128)
+    assert layer.weight.dtype == torch.float32
+    last, first = policy.net.backbone.classifier[-1], policy.net.depth_mlp[0]
+    w1, b1, w2, b2 = (t.detach().double() for t in (last.weight, last.bias, first.weight, first.bias))
+    torch.testing.assert_close(layer.weight.detach().double(), w2 @ w1, atol=1e-7, rtol=1e-6)
+    torch.testing.assert_close(layer.bias.detach().double(), w2 @ b1 + b2, atol=1e-7, rtol=1e-6)
+    depth_x, state_x = net_inputs(policy, 5, seed=8)
+    with torch.no_grad():
+        torch.testing.assert_close(
+            folded.net(depth_x, state_x), policy.net(depth_x, state_x), atol=1e-5, rtol=0
+        )
+        # The backbone of the copy returns the classifier's hidden features; depth_mlp takes them.
+        feats = folded.net.backbone(depth_x)
+        assert feats.shape == (5, hidden)
+        torch.testing.assert_close(
+            folded.net.depth_mlp(feats), policy.net.depth_mlp(policy.net.backbone(depth_x)), atol=1e-5, rtol=0
+        )
+        # Guard for this test's weights: both parts of the folded bias and the folded weight matter.
+        ref = policy.net(depth_x, state_x)
+        for tensor in (last.bias, last.weight, first.bias):
+            saved = tensor.clone()
+            tensor.zero_()
+            assert float((policy.net(depth_x, state_x) - ref).abs().max()) > 1e-3
+            tensor.copy_(saved)
+
+
+def test_fold_backbone_head_rejects_another_structure() -> None:
+    cfg = ModelConfig(input_height=32, input_width=32)
+
+    def fresh() -> Policy:
+        torch.manual_seed(0)
+        return build_policy(cfg, 10, 2.0)
+
+    policy = fresh()
+    policy.net.backbone.classifier[-1] = torch.nn.Identity()
+    with pytest.raises(ValueError, match=r"classifier's last layer must be nn\.Linear, got Identity"):
+        fold_backbone_head(policy)
+    policy = fresh()
+    policy.net.depth_mlp[0] = torch.nn.Identity()
+    with pytest.raises(ValueError, match=r"depth_mlp\[0\] must be nn\.Linear, got Identity"):
+        fold_backbone_head(policy)
+    policy = fresh()
+    policy.net.backbone.classifier[-1] = torch.nn.Linear(1024, 999)
+    with pytest.raises(
+        ValueError, match=r"depth_mlp\[0\] takes 1000 features but the backbone classifier gives 999"
+    ):
+        fold_backbone_head(policy)
+
+    class OtherNet(PolicyNet):
+        def forward(self, depth_x: torch.Tensor, state_x: torch.Tensor) -> torch.Tensor:
+            return super().forward(depth_x.flip(-1), state_x)
+
+    policy = fresh()
+    policy.net.__class__ = OtherNet
+    with pytest.raises(ValueError, match="policy.net must be a PolicyNet with its own forward, got OtherNet"):
+        fold_backbone_head(policy)
+    # export_torchscript refuses such a policy with the same message, before writing anything.
+    with pytest.raises(ValueError, match="fold_backbone_head: policy.net must be a PolicyNet"):
+        export_torchscript(policy, Path("/nonexistent/dir/p.ts"), {})
+
+
+@pytest.mark.parametrize("memory_format", [torch.contiguous_format, torch.channels_last])
+def test_export_leaves_the_callers_policy_untouched(
+    tmp_path: Path, memory_format: torch.memory_format
+) -> None:
+    torch.manual_seed(9)
+    cfg = ModelConfig(input_height=32, input_width=32)
+    policy = make_backbone_head_matter(build_policy(cfg, 10, 2.0), seed=9).to(memory_format=memory_format)
+    policy.train()  # as the trainer may leave it
+    before = {k: (v.clone(), v.stride()) for k, v in policy.state_dict().items()}
+    layers = (policy.net.backbone.classifier[-1], policy.net.depth_mlp[0])
+    depth_x, state_x = net_inputs(policy, 3, seed=10)
+    inputs = (
+        torch.rand(3, 32, 32) * 5,
+        torch.randn(3, 3),
+        torch.randn(3, 3),
+        torch.nn.functional.normalize(torch.randn(3, 4), dim=1),
+        torch.randn(3, 3),
+    )
+    export_torchscript(policy, tmp_path / "p.ts", policy_metadata(policy, {}), inputs)
+    assert policy.training
+    after = policy.state_dict()
+    assert after.keys() == before.keys()
+    for key, (value, stride) in before.items():
+        assert torch.equal(after[key], value), key
+        assert after[key].stride() == stride, key
+    conv = policy.net.backbone.features[0][0].weight
+    assert conv.is_contiguous(memory_format=memory_format)
+    assert (policy.net.backbone.classifier[-1], policy.net.depth_mlp[0]) == layers
+    assert (layers[0].out_features, layers[1].in_features) == (1000, 1000)
+    assert all(p.requires_grad for p in policy.parameters())
+    # inference_module (what is scripted) is a separate, folded, channels_last module.
+    inf = inference_module(policy)
+    assert inf.net.backbone.features[0][0].weight.is_contiguous(memory_format=torch.channels_last)
+    assert isinstance(inf.net.backbone.classifier[-1], torch.nn.Identity)
+    assert policy.net.backbone.classifier[-1] is layers[0] and policy.training
+    with torch.no_grad():
+        policy.eval()
+        torch.testing.assert_close(inf.net(depth_x, state_x), policy.net(depth_x, state_x), atol=1e-5, rtol=0)
 
 
 def test_loading_a_file_that_is_not_a_policy_export_fails_clearly(tmp_path: Path) -> None:

@@ -1,6 +1,6 @@
 """TorchScript export of a trained policy, with its preprocessing, for the inference nodes (issue 8).
 
-The file is `torch.jit.freeze(torch.jit.script(policy.eval()))` saved with one extra file,
+The file is `torch.jit.freeze(torch.jit.script(inference_module(policy)))` saved with one extra file,
 `quad_il_policy.json` (read in C++ with `torch::jit::load(path, device, extra_files)`, in Python with
 `torch.jit.load(path, _extra_files=...)`). Its methods:
 
@@ -12,11 +12,19 @@ The file is `torch.jit.freeze(torch.jit.script(policy.eval()))` saved with one e
 
 and attributes input_height, input_width, max_depth_m, num_ctrl_pts, horizon_s. Any depth image size is
 accepted (the file resizes); the control points span `horizon_s` seconds from the depth frame's stamp.
+
+`inference_module` is an eval-mode copy of the policy, made faster for CPU inference without changing what
+it computes: the backbone's last Linear (1024 -> 1000 for MobileNetV3-Small) and the depth MLP's first Linear
+(1000 -> 128) are merged into one (`fold_backbone_head`: two affine maps with nothing between them), and the
+convolution weights are stored channels_last (oneDNN then runs the depthwise convolutions without reorders).
+The caller's policy, and so the training checkpoint, keep the 1000-wide layer; the export check compares the
+reloaded file with the eager, unfolded policy.
 """
 
 from __future__ import annotations
 
 import contextlib
+import copy
 import json
 import warnings
 from collections.abc import Iterator
@@ -24,8 +32,10 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from torch import nn
 
-from quad_il.learning.model import Policy
+from quad_il.learning.mobilenet_v3 import MobileNetV3
+from quad_il.learning.model import Policy, PolicyNet
 
 META_FILE = "quad_il_policy.json"
 META_FORMAT = "quad_il_policy/1"
@@ -99,6 +109,67 @@ def policy_metadata(
     return meta
 
 
+def fold_backbone_head(policy: Policy) -> Policy:
+    """An eval-mode deep copy of `policy` in which the backbone's last Linear is folded into the depth MLP.
+
+    In `PolicyNet.forward` the backbone's logits `z = W1 h + b1` (`net.backbone.classifier[-1]`, after the
+    classifier's Hardswish and Dropout) go straight into `net.depth_mlp[0]`: `W2 z + b2`, then ReLU. The two
+    affine maps compose into one, `(W2 W1) h + (W2 b1 + b2)`, computed in float64 and stored in the weights'
+    dtype: the copy's `depth_mlp[0]` becomes that Linear (1024 -> 128 for MobileNetV3-Small) and the
+    classifier's last layer an `nn.Identity`, so the backbone of the copy returns its hidden features. The
+    same function up to float rounding, with one large matrix product fewer. `policy` is not modified.
+
+    Raises ValueError when the network does not have the structure the fold relies on.
+    """
+    net = getattr(policy, "net", None)
+    if not isinstance(net, PolicyNet) or type(net).forward is not PolicyNet.forward:
+        raise ValueError(
+            "fold_backbone_head: policy.net must be a PolicyNet with its own forward, "
+            f"got {type(net).__name__}"
+        )
+    backbone = net.backbone
+    if not isinstance(backbone, MobileNetV3) or type(backbone).forward is not MobileNetV3.forward:
+        raise ValueError(
+            "fold_backbone_head: policy.net.backbone must be a MobileNetV3 with its own forward, "
+            f"got {type(backbone).__name__}"
+        )
+    classifier, depth_mlp = backbone.classifier, net.depth_mlp
+    last = classifier[-1] if isinstance(classifier, nn.Sequential) and len(classifier) > 0 else None
+    first = depth_mlp[0] if isinstance(depth_mlp, nn.Sequential) and len(depth_mlp) > 0 else None
+    if not isinstance(last, nn.Linear):
+        raise ValueError(
+            "fold_backbone_head: the backbone classifier's last layer must be nn.Linear, "
+            f"got {type(last).__name__}"
+        )
+    if not isinstance(first, nn.Linear):
+        raise ValueError(f"fold_backbone_head: depth_mlp[0] must be nn.Linear, got {type(first).__name__}")
+    if first.in_features != last.out_features:
+        raise ValueError(
+            f"fold_backbone_head: depth_mlp[0] takes {first.in_features} features but the backbone "
+            f"classifier gives {last.out_features}"
+        )
+    with torch.no_grad():
+        w1, w2 = last.weight.double(), first.weight.double()
+        b1 = last.bias.double() if last.bias is not None else torch.zeros_like(w1[:, 0])
+        b2 = first.bias.double() if first.bias is not None else torch.zeros_like(w2[:, 0])
+        weight = w2 @ w1
+        bias = w2 @ b1 + b2
+        folded = nn.Linear(
+            last.in_features, first.out_features, device=first.weight.device, dtype=first.weight.dtype
+        )
+        folded.weight.copy_(weight)
+        folded.bias.copy_(bias)
+    out = copy.deepcopy(policy).eval()
+    out.net.backbone.classifier[-1] = nn.Identity()
+    out.net.depth_mlp[0] = folded.eval()
+    return out
+
+
+def inference_module(policy: Policy) -> Policy:
+    """What `export_torchscript` scripts: `fold_backbone_head(policy)` with channels_last conv weights."""
+    return fold_backbone_head(policy).to(memory_format=torch.channels_last)
+
+
 def export_torchscript(
     policy: Policy,
     path: str | Path,
@@ -106,7 +177,9 @@ def export_torchscript(
     check_inputs: tuple[torch.Tensor, ...] | None = None,
     tol: float = 1e-4,
 ) -> float:
-    """Script, freeze and save; with `check_inputs` the reloaded file is run against the eager policy.
+    """Script, freeze and save `inference_module(policy)`, a folded, channels_last copy (`policy` itself is
+    only put in eval mode during the call); with `check_inputs` the reloaded file is run against the eager,
+    unfolded policy.
 
     Returns the largest absolute difference found (0.0 without check inputs); raises RuntimeError above `tol`.
     """
@@ -114,7 +187,7 @@ def export_torchscript(
     policy.eval()
     try:
         with _quiet_jit():
-            frozen = torch.jit.freeze(torch.jit.script(policy), preserved_attrs=PRESERVED)
+            frozen = torch.jit.freeze(torch.jit.script(inference_module(policy)), preserved_attrs=PRESERVED)
             out = Path(path)
             tmp = out.with_name(out.name + ".partial")
             torch.jit.save(
