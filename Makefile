@@ -3,6 +3,7 @@
 #   make test    the whole test suite (lint, gtest, rostest, pytest) with a summary line
 #   make build   idempotent set-up (apt, .venv, pip) + catkin build
 #   make eval POLICY=runs/x/policy.ts [SEEDS=9000-9019] [EPISODES=20] [DENSITY=] [CONTROLLERS=expert,py,cpp] [EVAL_OUT=results/eval]
+#             [POLICY_CONFIG=config/policy_recovery.yaml]
 #                closed-loop evaluation of expert, Python and C++ policy on held-out worlds (docs/inference.md)
 #   make shell   a shell with the workspace sourced
 #   make bench-<component>   BENCH lines of one component (sim, tracker, planner, collector, train, inference, scale)
@@ -27,10 +28,12 @@ EPISODES ?= 20
 DENSITY ?=
 CONTROLLERS ?= expert,py,cpp
 EVAL_OUT ?= results/eval
+POLICY_CONFIG ?=
 eval: build
 	@test -n "$(POLICY)" || { echo "make eval: POLICY=<exported policy.ts> is required (a training run's policy.ts)" >&2; exit 2; }
 	@source scripts/env.sh && python -m quad_il.evaluation.run_eval --policy "$(POLICY)" --seeds "$(SEEDS)" \
-	  --episodes "$(EPISODES)" --controllers "$(CONTROLLERS)" --out "$(EVAL_OUT)" $(if $(DENSITY),--density $(DENSITY),)
+	  --episodes "$(EPISODES)" --controllers "$(CONTROLLERS)" --out "$(EVAL_OUT)" $(if $(DENSITY),--density $(DENSITY),) \
+	  $(if $(POLICY_CONFIG),--policy-config "$(POLICY_CONFIG)",)
 
 bench-%: build
 	@bash scripts/bench.sh $*

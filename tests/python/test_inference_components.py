@@ -12,14 +12,14 @@ import pytest
 import torch
 import yaml
 
-from quad_il.inference.config import PolicyConfigError, config_from_tree, load_policy_config
-from quad_il.inference.decider import DecisionInputs, PolicyDecider
+from quad_il.inference.config import PolicyConfigError, RecoveryConfig, config_from_tree, load_policy_config
+from quad_il.inference.decider import DecisionInputs, PolicyDecider, turned_goal
 from quad_il.inference.fixture import DecisionFixture, FixtureError, read_fixture, write_fixture
 from quad_il.inference.meta import PolicyFormatError, parse_policy_meta
 from quad_il.inference.policy import LoadedPolicy
 from quad_il.inference.preprocessing import PolicyPreprocessing, as_row
 from quad_il.inference.random_policy import export_random_policy
-from quad_il.inference.safety import CameraModel, SafetyVerdict
+from quad_il.inference.safety import CameraModel, SafetyVerdict, trajectory_in_view
 from quad_il.inference.trajectory import UniformBspline, braking_trajectory
 from quad_il.learning.config import ModelConfig
 from quad_il.learning.export import META_FILE, load_exported
@@ -141,6 +141,19 @@ def test_files_that_are_not_policy_exports_are_refused(tmp_path: Path, policies)
 def test_the_repository_config_loads_and_errors_name_the_key(tmp_path: Path) -> None:
     cfg = load_policy_config(CONFIG)
     assert cfg.num_threads == 1 and cfg.refusal.action == "stop" and cfg.safety.enabled
+    # The recovery variant differs only in the recovery turns and the safety margin.
+    rec = load_policy_config(CONFIG.with_name("policy_recovery.yaml"))
+    assert rec.recovery.goal_yaw_offsets_deg == [20.0, -20.0, 40.0, -40.0, 60.0, -60.0]
+    assert rec.safety.vehicle_radius_m == 0.40
+    assert (
+        rec.model_copy(
+            update={
+                "recovery": cfg.recovery,
+                "safety": rec.safety.model_copy(update={"vehicle_radius_m": 0.25}),
+            }
+        )
+        == cfg
+    )
     tree = yaml.safe_load(CONFIG.read_text())
     typo = copy.deepcopy(tree)
     typo["safety"]["max_vel_mp"] = 3.0
@@ -252,3 +265,109 @@ def test_fixtures_round_trip_and_errors_name_the_file(tmp_path: Path) -> None:
     (tmp_path / "fx" / "stamp_s.npy").unlink()
     with pytest.raises(FixtureError, match="stamp_s.npy: missing"):
         read_fixture(tmp_path / "fx")
+
+
+class _GoalLine(LoadedPolicy):
+    """Test double: the exported file's codec around a 'network' flying straight at the goal at 1.5 m/s."""
+
+    def run(self, depth_x, state_x, p, v, q, goal):  # noqa: ANN001, ANN201 - LoadedPolicy.run's signature
+        k, dt = self.meta.num_ctrl_pts, self.meta.knot_dt_s
+        p64, g64 = p[0].double(), goal[0].double()
+        direction = (g64 - p64) / torch.linalg.norm(g64 - p64)
+        tau = (torch.arange(k, dtype=torch.float64) - 1.0) * dt
+        ctrl = (p64 + 1.5 * tau[:, None] * direction).float().unsqueeze(0)
+        with torch.inference_mode():
+            return self.module.encode_target(ctrl, p, q).reshape(1, -1)
+
+
+def _wall_ahead() -> np.ndarray:
+    """_camera()'s view from the origin along +x: a wall 1.2 m ahead in the middle columns, free elsewhere."""
+    depth = np.full((50, 70), np.inf, np.float32)
+    depth[:, 25:45] = 1.2  # half-width 12.6 deg seen from the camera (fx 42.35, cx 34.5)
+    return depth
+
+
+def test_turned_goals_keep_distance_and_height() -> None:
+    p = np.array([1.0, 2.0, 1.5])
+    g = turned_goal(p, np.array([11.0, 2.0, 3.0]), 90.0)
+    np.testing.assert_allclose(g, [1.0, 12.0, 3.0], atol=1e-12)  # + = counter-clockwise seen from above
+    np.testing.assert_allclose(
+        turned_goal(p, np.array([11.0, 2.0, 3.0]), -30.0),
+        [1.0 + 10 * np.cos(np.pi / 6), 2.0 - 5.0, 3.0],
+        atol=1e-12,
+    )
+
+
+def test_trajectory_in_view_on_constructed_plans() -> None:
+    cfg = load_policy_config(CONFIG).safety
+    tau = np.arange(10) * 0.25
+
+    def line(direction: list[float]) -> UniformBspline:
+        return UniformBspline(
+            0.0, 0.25, np.asarray(direction) * tau[:, None] * 1.5 / np.linalg.norm(direction)
+        )
+
+    assert trajectory_in_view(line([1.0, 0.0, 0.0]), _camera(), cfg)  # straight ahead
+    assert trajectory_in_view(line([1.0, 0.5, 0.0]), _camera(), cfg)  # 26.6 deg left: inside 39.1 deg
+    assert not trajectory_in_view(line([1.0, 1.0, 0.0]), _camera(), cfg)  # 45 deg left: beyond the image
+    assert not trajectory_in_view(line([-1.0, 0.0, 0.0]), _camera(), cfg)  # behind the camera
+    # Samples that hold the camera (the vehicle's own place) are not judged: a plan that stays put is in view.
+    assert trajectory_in_view(UniformBspline(0.0, 0.25, np.zeros((10, 3))), _camera(), cfg)
+
+
+def test_the_recovery_turns_the_goal_until_a_plan_is_accepted_and_in_view(policies) -> None:
+    cfg = load_policy_config(CONFIG)
+    assert cfg.recovery.goal_yaw_offsets_deg == []  # off by default
+    policy = _GoalLine(policies["world"].path)
+    q = np.array([0.0, 0.0, 0.0, 1.0])
+    inp = DecisionInputs(2.0, _wall_ahead(), _camera(), np.zeros(3), np.zeros(3), q, np.array([10.0, 0, 0]))
+
+    off = PolicyDecider(policy, cfg.safety, cfg.refusal).decide(inp)
+    assert off.safety.verdict == SafetyVerdict.COLLISION_IN_DEPTH
+    assert off.recovery is None and off.recovery_tries == 0 and off.to_send() is off.stop
+
+    # 60 deg: clear of the wall but out of the image (refused by the view test); 30 deg: accepted.
+    on = RecoveryConfig(goal_yaw_offsets_deg=[60.0, 30.0, -30.0])
+    decider = PolicyDecider(policy, cfg.safety, cfg.refusal, on)
+    d = decider.decide(inp)
+    assert d.safety.verdict == SafetyVerdict.COLLISION_IN_DEPTH  # the verdict is the policy's own plan's
+    assert d.recovery_yaw_deg == 30.0 and d.recovery_tries == 2
+    assert d.to_send() is d.recovery and d.stop is None
+    heading = d.recovery.position(np.array([1.0]))[0]
+    assert np.degrees(np.arctan2(heading[1], heading[0])) == pytest.approx(30.0, abs=1e-3)
+    assert decider.counts.counts[SafetyVerdict.COLLISION_IN_DEPTH] == 1
+
+    # Only turns that stay blocked or leave the view: no recovery, the stopping trajectory as before.
+    none = PolicyDecider(policy, cfg.safety, cfg.refusal, RecoveryConfig(goal_yaw_offsets_deg=[60.0, 10.0]))
+    d = none.decide(inp)
+    assert d.recovery is None and d.recovery_tries == 2 and d.to_send() is d.stop
+
+    # An accepted plan asks no turned goal.
+    free = DecisionInputs(
+        2.0,
+        np.full((50, 70), np.inf, np.float32),
+        _camera(),
+        np.zeros(3),
+        np.zeros(3),
+        q,
+        np.array([10.0, 0, 0]),
+    )
+    d = decider.decide(free)
+    assert d.accepted and d.recovery_tries == 0 and d.to_send() is d.proposed
+
+
+@pytest.mark.parametrize(
+    ("angles", "message"),
+    [
+        ("[0.0]", "non-zero"),
+        ("[200.0]", "within \\[-180, 180\\]"),
+        ("[.nan]", "finite"),
+        (str([10.0] * 17), "at most 16"),
+        ("30", "valid list"),
+    ],
+)
+def test_recovery_config_errors_name_the_key(tmp_path: Path, angles: str, message: str) -> None:
+    bad = tmp_path / "policy.yaml"
+    bad.write_text(CONFIG.read_text().replace("goal_yaw_offsets_deg: []", f"goal_yaw_offsets_deg: {angles}"))
+    with pytest.raises(PolicyConfigError, match=rf"recovery\.goal_yaw_offsets_deg[\s\S]*{message}"):
+        load_policy_config(bad)

@@ -21,13 +21,14 @@ from quad_il.inference.decider import DecisionInputs, PolicyDecider
 from quad_il.inference.fixture import DecisionFixture, write_fixture
 from quad_il.inference.policy import LoadedPolicy
 from quad_il.inference.random_policy import export_random_policy
-from quad_il.inference.safety import SafetyVerdict, check_trajectory
+from quad_il.inference.safety import SafetyVerdict, check_trajectory, trajectory_in_view
 from quad_il.learning.config import ModelConfig
 from quad_il.learning.synthetic import make_synthetic_arrays
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / "config" / "policy.yaml"
 TOL = 1e-4  # the parity tolerance on the output
+RECOVERY_TURNS = [30.0, -30.0, 60.0, -60.0]
 
 
 def _find_tool(name: str) -> Path | None:
@@ -131,6 +132,11 @@ def run_both(request: pytest.FixtureRequest, recorded, tmp_path_factory):
     policy = LoadedPolicy(policy_path)
     trajs = _designed_trajectories(fx, 10, policy.meta.knot_dt_s)
     np.save(work / "trajectories.npy", trajs)
+    # The repository's config with the recovery on, so both languages also run their recovery loops.
+    config = work / "policy.yaml"
+    config.write_text(
+        CONFIG.read_text().replace("goal_yaw_offsets_deg: []", f"goal_yaw_offsets_deg: {RECOVERY_TURNS}")
+    )
     out = work / "cpp"
     proc = subprocess.run(
         [
@@ -140,7 +146,7 @@ def run_both(request: pytest.FixtureRequest, recorded, tmp_path_factory):
             "--fixture",
             str(fixture_dir),
             "--config",
-            str(CONFIG),
+            str(config),
             "--out",
             str(out),
             "--trajectories",
@@ -152,8 +158,9 @@ def run_both(request: pytest.FixtureRequest, recorded, tmp_path_factory):
     )
     assert proc.returncode == 0, proc.stderr
     cpp = {p.stem: np.load(p) for p in out.glob("*.npy")}
-    cfg = load_policy_config(CONFIG)
-    decider = PolicyDecider(policy, cfg.safety, cfg.refusal)
+    cfg = load_policy_config(config)
+    assert cfg.recovery.goal_yaw_offsets_deg == RECOVERY_TURNS
+    decider = PolicyDecider(policy, cfg.safety, cfg.refusal, cfg.recovery)
     py = []
     for i in range(len(fx)):
         inp = DecisionInputs(
@@ -207,8 +214,18 @@ def test_trajectory_layout_and_decisions_agree(run_both) -> None:
     np.testing.assert_allclose(cpp["knots"], py[0].proposed.knots(), rtol=0, atol=1e-12)
     assert cpp["knots"][3] == 0.0 and len(cpp["knots"]) == policy.meta.num_ctrl_pts + 4
     np.testing.assert_array_equal(cpp["verdict"], [int(d.safety.verdict) for d in py])
-    kinds = [0 if d.to_send() is None else (1 if d.accepted else 2) for d in py]
+    kinds = [
+        0 if d.to_send() is None else (1 if d.accepted else (3 if d.recovery is not None else 2)) for d in py
+    ]
     np.testing.assert_array_equal(cpp["sent_kind"], kinds)
+    # The recovery: as many turned goals asked, the same one accepted, the same plan.
+    np.testing.assert_array_equal(cpp["recovery_tries"], [d.recovery_tries for d in py])
+    assert all(d.recovery_tries == (0 if d.accepted else len(RECOVERY_TURNS)) or d.recovery for d in py)
+    py_yaw = [np.nan if d.recovery_yaw_deg is None else d.recovery_yaw_deg for d in py]
+    np.testing.assert_array_equal(cpp["recovery_yaw_deg"], py_yaw)
+    for i, d in enumerate(py):
+        if d.recovery is not None:
+            np.testing.assert_allclose(cpp["recovery_ctrl"][i], d.recovery.ctrl_world, rtol=0, atol=TOL)
     for i, d in enumerate(py):
         if d.stop is not None:
             np.testing.assert_allclose(cpp["stop_ctrl"][i], d.stop.ctrl_world, rtol=0, atol=1e-9)
@@ -226,5 +243,18 @@ def test_safety_layer_verdicts_agree_for_every_refusal_reason(run_both) -> None:
         py_verdicts.append(int(r.verdict))
         py_values.append(r.value)
     np.testing.assert_array_equal(cpp["traj_verdict"], py_verdicts)
+    py_in_view = [
+        int(
+            trajectory_in_view(
+                UniformBspline(float(fx.stamp_s[i]), policy.meta.knot_dt_s, trajs[i]),
+                fx.camera(i),
+                cfg.safety,
+            )
+        )
+        for i in range(len(fx))
+    ]
+    np.testing.assert_array_equal(cpp["traj_in_view"], py_in_view)
+    # The designed set holds plans in view (straight ahead) and out of it (3 m to the side).
+    assert set(py_in_view) == {0, 1}, py_in_view
     np.testing.assert_allclose(cpp["traj_value"], py_values, rtol=0, atol=1e-9)
     assert set(py_verdicts) == {int(v) for v in SafetyVerdict}, py_verdicts

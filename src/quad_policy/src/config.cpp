@@ -34,6 +34,12 @@ PolicyNodeConfig Load(quad_common::StrictYaml y) {
   }
   c.refusal.stop_max_decel_mps2 = y.Get<double>("refusal.stop_max_decel_mps2", Positive());
   c.refusal.stop_min_duration_s = y.Get<double>("refusal.stop_min_duration_s", Positive());
+  c.recovery.goal_yaw_offsets_deg = y.Get<std::vector<double>>("recovery.goal_yaw_offsets_deg");
+  try {
+    ValidateRecoveryConfig(c.recovery);
+  } catch (const std::invalid_argument& e) {
+    throw quad_common::ConfigError(y.source() + ": " + e.what());
+  }
   c.safety.enabled = y.Get<bool>("safety.enabled");
   c.safety.max_vel_mps = y.Get<double>("safety.max_vel_mps", Positive());
   c.safety.max_acc_mps2 = y.Get<double>("safety.max_acc_mps2", Positive());

@@ -11,7 +11,16 @@ const char* ToString(RefusalAction action) { return action == RefusalAction::kHo
 
 const UniformBspline* Decision::to_send() const {
   if (accepted()) return &proposed;
+  if (recovery) return &*recovery;
   return stop ? &*stop : nullptr;
+}
+
+Eigen::Vector3d TurnedGoal(const Eigen::Vector3d& p_world_body, const Eigen::Vector3d& goal_world,
+                           double yaw_deg) {
+  const double a = yaw_deg * M_PI / 180.0;
+  const double c = std::cos(a), s = std::sin(a);
+  const Eigen::Vector3d d = goal_world - p_world_body;
+  return p_world_body + Eigen::Vector3d(c * d.x() - s * d.y(), s * d.x() + c * d.y(), d.z());
 }
 
 namespace {
@@ -31,14 +40,31 @@ void ValidateRefusal(const RefusalConfig& r) {
 
 }  // namespace
 
+void ValidateRecoveryConfig(const RecoveryConfig& r) {
+  if (r.goal_yaw_offsets_deg.size() > 16) {
+    throw std::invalid_argument("recovery.goal_yaw_offsets_deg has " +
+                                std::to_string(r.goal_yaw_offsets_deg.size()) + " angles, at most 16");
+  }
+  for (double a : r.goal_yaw_offsets_deg) {
+    if (!(std::isfinite(a) && a >= -180.0 && a <= 180.0 && a != 0.0)) {
+      throw std::invalid_argument(
+          "recovery.goal_yaw_offsets_deg: angles must be finite, non-zero and within [-180, 180] degrees, "
+          "got " +
+          std::to_string(a));
+    }
+  }
+}
+
 PolicyDecider::PolicyDecider(std::shared_ptr<const TorchPolicy> policy, const SafetyConfig& safety,
-                             const RefusalConfig& refusal)
+                             const RefusalConfig& refusal, const RecoveryConfig& recovery)
     : policy_(std::move(policy)),
       safety_(safety),
       refusal_(refusal),
+      recovery_(recovery),
       decoder_(policy_ ? policy_->meta() : throw std::invalid_argument("PolicyDecider needs a policy")) {
   ValidateSafetyConfig(safety_);
   ValidateRefusal(refusal_);
+  ValidateRecoveryConfig(recovery_);
 }
 
 Decision PolicyDecider::Decide(const DecisionInputs& in) {
@@ -63,7 +89,21 @@ Decision PolicyDecider::Decide(const DecisionInputs& in) {
 
   t0 = std::chrono::steady_clock::now();
   d.safety = CheckTrajectory(d.proposed, in.state.p_world_body, &in.depth, in.camera, safety_);
-  if (!d.accepted() && refusal_.action == RefusalAction::kStop) {
+  if (!d.accepted()) {
+    for (double yaw : recovery_.goal_yaw_offsets_deg) {
+      ++d.recovery_tries;
+      const Eigen::Vector3d goal = TurnedGoal(in.state.p_world_body, in.goal_world, yaw);
+      const std::vector<float> y = policy_->Run(d.depth_x, EncodeState(in.state, goal, meta), in.state, goal);
+      UniformBspline traj = PolicyTrajectory(decoder_.Decode(y, in.state), meta, in.stamp_s);
+      if (CheckTrajectory(traj, in.state.p_world_body, &in.depth, in.camera, safety_).accepted() &&
+          TrajectoryInView(traj, in.camera, safety_)) {
+        d.recovery = std::move(traj);
+        d.recovery_yaw_deg = yaw;
+        break;
+      }
+    }
+  }
+  if (!d.accepted() && !d.recovery && refusal_.action == RefusalAction::kStop) {
     d.stop = BrakingTrajectory(in.state.p_world_body, in.state.v_world, refusal_.stop_max_decel_mps2,
                                refusal_.stop_min_duration_s, in.stamp_s);
   }

@@ -154,6 +154,20 @@ std::vector<double> SafetySampleTimes(const UniformBspline& traj, const SafetyCo
   return times;
 }
 
+bool TrajectoryInView(const UniformBspline& traj, const CameraModel& camera, const SafetyConfig& cfg) {
+  const Eigen::Isometry3d T_camera_world = camera.T_world_camera.inverse();
+  const double r2 = cfg.vehicle_radius_m * cfg.vehicle_radius_m;
+  for (double t : SafetySampleTimes(traj, cfg)) {
+    const Eigen::Vector3d c = T_camera_world * traj.Position(t);
+    if (c.squaredNorm() <= r2) continue;  // the vehicle's own place, as in FindDepthCollision
+    if (!(c.z() > 0.0)) return false;
+    const double u = camera.cx + camera.fx * c.x() / c.z();
+    const double v = camera.cy + camera.fy * c.y() / c.z();
+    if (!(u >= 0.0 && u <= camera.width - 1.0 && v >= 0.0 && v <= camera.height - 1.0)) return false;
+  }
+  return true;
+}
+
 SafetyResult CheckTrajectory(const UniformBspline& traj, const Eigen::Vector3d& p_world_vehicle,
                              const DepthImageView* depth, const CameraModel& camera,
                              const SafetyConfig& cfg) {

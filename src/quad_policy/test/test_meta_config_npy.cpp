@@ -111,6 +111,10 @@ TEST(PolicyNodeConfig, TheRepositoryConfigLoads) {
   EXPECT_EQ(c.refusal.action, RefusalAction::kStop);
   EXPECT_TRUE(c.safety.enabled);
   EXPECT_NO_THROW(ValidateSafetyConfig(c.safety));
+  EXPECT_TRUE(c.recovery.goal_yaw_offsets_deg.empty());  // the recovery is off by default
+  const PolicyNodeConfig r = LoadPolicyNodeConfig(QUAD_IL_CONFIG_DIR "/policy_recovery.yaml");
+  EXPECT_EQ(r.recovery.goal_yaw_offsets_deg, (std::vector<double>{20, -20, 40, -40, 60, -60}));
+  EXPECT_EQ(r.safety.vehicle_radius_m, 0.40);
 }
 
 std::string RepoConfigWith(const std::string& from, const std::string& to) {
@@ -138,6 +142,30 @@ TEST(PolicyNodeConfig, TyposMissingKeysAndBadValuesAreNamed) {
   EXPECT_NE(ErrorOf([] {
               PolicyNodeConfigFromString(RepoConfigWith("goal_tolerance_m: 0.5", ""), "c");
             }).find("missing required key 'goal_tolerance_m'"),
+            std::string::npos);
+}
+
+TEST(PolicyNodeConfig, RecoveryTurnsAreReadAndBadOnesNamed) {
+  const std::string key = "goal_yaw_offsets_deg: []";
+  const PolicyNodeConfig c =
+      PolicyNodeConfigFromString(RepoConfigWith(key, "goal_yaw_offsets_deg: [30, -30.5]"), "c");
+  EXPECT_EQ(c.recovery.goal_yaw_offsets_deg, (std::vector<double>{30.0, -30.5}));
+  for (const auto& [value, message] : std::vector<std::pair<std::string, std::string>>{
+           {"[0]", "non-zero"}, {"[200]", "within [-180, 180]"}, {"[.nan]", "finite"}}) {
+    const std::string err = ErrorOf(
+        [&] { PolicyNodeConfigFromString(RepoConfigWith(key, "goal_yaw_offsets_deg: " + value), "c"); });
+    EXPECT_NE(err.find("recovery.goal_yaw_offsets_deg"), std::string::npos) << err;
+    EXPECT_NE(err.find(message), std::string::npos) << err;
+  }
+  std::string many = "[";
+  for (int i = 1; i <= 17; ++i) many += std::to_string(i) + (i < 17 ? ", " : "]");
+  EXPECT_NE(ErrorOf([&] {
+              PolicyNodeConfigFromString(RepoConfigWith(key, "goal_yaw_offsets_deg: " + many), "c");
+            }).find("17 angles, at most 16"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf([&] {
+              PolicyNodeConfigFromString(RepoConfigWith(key, "goal_yaw_offsets_deg: 30"), "c");
+            }).find("recovery.goal_yaw_offsets_deg"),
             std::string::npos);
 }
 

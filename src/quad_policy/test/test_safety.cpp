@@ -6,6 +6,7 @@
 #include <limits>
 #include <random>
 
+#include "quad_policy/policy_decider.h"
 #include "quad_policy/safety.h"
 
 namespace quad_policy {
@@ -235,6 +236,43 @@ TEST(Safety, VerdictCountsSumTheRefusals) {
   c.Add(SafetyVerdict::kCollisionInDepth);
   EXPECT_EQ(c[SafetyVerdict::kCollisionInDepth], 2u);
   EXPECT_EQ(c.refused(), 3u);
+}
+
+// TrajectoryInView: straight ahead and a shallow turn stay in the image; a sharp turn leaves it, a plan
+// backwards is behind the camera; samples holding the camera (the vehicle's own place) are not judged.
+UniformBspline Heading(double yaw_deg, double speed_mps = 1.5) {
+  UniformBspline s = Line(0.0);
+  const double a = yaw_deg * M_PI / 180.0;
+  for (int i = 0; i < 10; ++i) {
+    const double tau = (i - 1) * s.knot_dt_s;
+    s.ctrl_world.row(i) << speed_mps * tau * std::cos(a), speed_mps * tau * std::sin(a), 0.0;
+  }
+  return s;
+}
+
+TEST(Safety, TrajectoryInViewFollowsTheFieldOfView) {
+  const SafetyConfig cfg;  // whole trajectory checked (check_horizon_s 0)
+  // Half the horizontal field of view: atan(79.5 / 96.8) = 39.4 deg.
+  EXPECT_TRUE(TrajectoryInView(Heading(0.0), Camera(), cfg));
+  EXPECT_TRUE(TrajectoryInView(Heading(35.0), Camera(), cfg));
+  EXPECT_TRUE(TrajectoryInView(Heading(-35.0), Camera(), cfg));
+  EXPECT_FALSE(TrajectoryInView(Heading(45.0), Camera(), cfg));
+  EXPECT_FALSE(TrajectoryInView(Heading(180.0), Camera(), cfg));
+  EXPECT_TRUE(TrajectoryInView(Heading(90.0, 0.0), Camera(), cfg));  // stays put: the vehicle's own place
+  // Only samples up to the check horizon count: 45 deg at 0.2 m/s stays within the vehicle's 0.25 m sphere
+  // for the first second and leaves it (and the view) in the second.
+  SafetyConfig short_horizon;
+  short_horizon.check_horizon_s = 1.0;
+  EXPECT_TRUE(TrajectoryInView(Heading(45.0, 0.2), Camera(), short_horizon));
+  EXPECT_FALSE(TrajectoryInView(Heading(45.0, 0.2), Camera(), cfg));
+}
+
+TEST(Recovery, TurnedGoalsKeepDistanceAndHeight) {
+  const Eigen::Vector3d p(1.0, 2.0, 1.5), goal(11.0, 2.0, 3.0);
+  EXPECT_TRUE(TurnedGoal(p, goal, 90.0).isApprox(Eigen::Vector3d(1.0, 12.0, 3.0), 1e-12));
+  EXPECT_TRUE(TurnedGoal(p, goal, -30.0)
+                  .isApprox(Eigen::Vector3d(1.0 + 10.0 * std::cos(M_PI / 6), -3.0, 3.0), 1e-12));
+  EXPECT_NEAR((TurnedGoal(p, goal, 137.0) - p).norm(), (goal - p).norm(), 1e-12);
 }
 
 }  // namespace

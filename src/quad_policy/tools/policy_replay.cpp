@@ -8,13 +8,16 @@
 //                 [--trajectories ctrl.npy]
 //
 // With --trajectories (an (N, K, 3) array of world-frame control points, one trajectory per frame, knot
-// interval
-// --knot-dt, default the policy's), the safety layer alone also judges those trajectories against frame i's
-// depth, camera and odometry: traj_verdict.npy, traj_value.npy (designed cases for every refusal reason).
+// interval --knot-dt, default the policy's), the safety layer alone also judges those trajectories against
+// frame i's depth, camera and odometry: traj_verdict.npy, traj_value.npy (designed cases for every refusal
+// reason) and traj_in_view.npy (TrajectoryInView). The recovery (the config's recovery section) writes
+// recovery_tries.npy, recovery_yaw_deg.npy (NaN: not recovered) and recovery_ctrl.npy (zeros: not
+// recovered); sent_kind.npy is 0 nothing, 1 the policy's plan, 2 the stopping trajectory, 3 the recovery's.
 //
 // Exit status: 0 done, 1 bad input (message on stderr), 2 usage.
 #include <filesystem>
 #include <iostream>
+#include <limits>
 #include <map>
 #include <memory>
 #include <string>
@@ -58,14 +61,15 @@ int main(int argc, char** argv) {
     const PolicyNodeConfig cfg = LoadPolicyNodeConfig(args["config"]);
     ConfigureTorchThreads(args.count("threads") ? std::stoi(args["threads"]) : 1);
     auto policy = std::make_shared<const TorchPolicy>(args["policy"]);
-    PolicyDecider decider(policy, cfg.safety, cfg.refusal);
+    PolicyDecider decider(policy, cfg.safety, cfg.refusal, cfg.recovery);
     const DecisionFixture fx = ReadDecisionFixture(args["fixture"]);
     const PolicyMeta& m = policy->meta();
     const std::size_t n = fx.frames.size();
     const std::size_t k = static_cast<std::size_t>(m.num_ctrl_pts);
     std::vector<float> depth_x, file_depth_x, state_x, y;
     std::vector<double> ctrl, file_decode, file_forward, safety_value, stop_ctrl, stop_dt, knots;
-    std::vector<int32_t> verdict, sent_kind;
+    std::vector<double> recovery_yaw, recovery_ctrl;
+    std::vector<int32_t> verdict, sent_kind, recovery_tries;
     for (std::size_t i = 0; i < n; ++i) {
       const RecordedFrame& f = fx.frames[i];
       DecisionInputs in;
@@ -86,7 +90,15 @@ int main(int argc, char** argv) {
       verdict.push_back(static_cast<int32_t>(d.safety.verdict));
       safety_value.push_back(d.safety.value);
       const UniformBspline* sent = d.to_send();
-      sent_kind.push_back(sent == nullptr ? 0 : (d.accepted() ? 1 : 2));
+      sent_kind.push_back(sent == nullptr ? 0 : (d.accepted() ? 1 : (d.recovery ? 3 : 2)));
+      recovery_tries.push_back(d.recovery_tries);
+      if (d.recovery) {
+        recovery_yaw.push_back(d.recovery_yaw_deg);
+        AppendCtrl(d.recovery->ctrl_world, &recovery_ctrl);
+      } else {
+        recovery_yaw.push_back(std::numeric_limits<double>::quiet_NaN());
+        recovery_ctrl.insert(recovery_ctrl.end(), k * 3, 0.0);
+      }
       if (d.stop) {
         AppendCtrl(d.stop->ctrl_world, &stop_ctrl);
         stop_dt.push_back(d.stop->knot_dt_s);
@@ -113,6 +125,9 @@ int main(int argc, char** argv) {
     WriteNpy(out + "/sent_kind.npy", NpyArray::FromInt32(sent_kind, {n}));
     WriteNpy(out + "/stop_ctrl.npy", NpyArray::FromDouble(stop_ctrl, {n, 4, 3}));
     WriteNpy(out + "/stop_knot_dt.npy", NpyArray::FromDouble(stop_dt, {n}));
+    WriteNpy(out + "/recovery_tries.npy", NpyArray::FromInt32(recovery_tries, {n}));
+    WriteNpy(out + "/recovery_yaw_deg.npy", NpyArray::FromDouble(recovery_yaw, {n}));
+    WriteNpy(out + "/recovery_ctrl.npy", NpyArray::FromDouble(recovery_ctrl, {n, k, 3}));
     WriteNpy(out + "/knots.npy", NpyArray::FromDouble(knots, {knots.size()}));
     WriteNpy(out + "/has_forward_net.npy", NpyArray::FromInt32({policy->has_forward_net() ? 1 : 0}, {1}));
     if (args.count("trajectories")) {
@@ -122,7 +137,7 @@ int main(int argc, char** argv) {
       }
       const std::vector<double> c = t.as_double();
       const std::size_t kk = t.shape[1];
-      std::vector<int32_t> tv;
+      std::vector<int32_t> tv, in_view;
       std::vector<double> tval;
       for (std::size_t i = 0; i < n; ++i) {
         UniformBspline s;
@@ -137,10 +152,12 @@ int main(int argc, char** argv) {
             CheckTrajectory(s, fx.frames[i].state.p_world_body, &view, fx.Camera(i), cfg.safety);
         tv.push_back(static_cast<int32_t>(res.verdict));
         tval.push_back(res.value);
+        in_view.push_back(TrajectoryInView(s, fx.Camera(i), cfg.safety) ? 1 : 0);
         std::cerr << "[policy_replay] trajectory " << i << ": " << res.reason << "\n";
       }
       WriteNpy(out + "/traj_verdict.npy", NpyArray::FromInt32(tv, {n}));
       WriteNpy(out + "/traj_value.npy", NpyArray::FromDouble(tval, {n}));
+      WriteNpy(out + "/traj_in_view.npy", NpyArray::FromInt32(in_view, {n}));
     }
   } catch (const std::exception& e) {
     std::cerr << "policy_replay: " << e.what() << "\n";

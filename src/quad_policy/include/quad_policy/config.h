@@ -20,6 +20,7 @@ struct PolicyNodeConfig {
   std::string lockstep_consumer = "policy";  // FrameAck.consumer of every depth frame
   bool send_to_tracker = true;  // send trajectories to the tracker action (else only publish them)
   RefusalConfig refusal;
+  RecoveryConfig recovery;
   SafetyConfig safety;
 };
 

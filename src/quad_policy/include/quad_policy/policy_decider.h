@@ -1,7 +1,8 @@
 // One decision of the learned policy: depth frame + odometry + goal -> preprocessing -> network ->
-// world-frame B-spline -> safety layer -> the trajectory to send (the policy's, or the stopping trajectory
-// when refused). ROS-free; policy_node, the parity replay tool and the benchmark all call Decide(). The
-// Python twin is quad_il/inference/decider.py.
+// world-frame B-spline -> safety layer -> the trajectory to send: the policy's; when refused, the first
+// accepted plan of the recovery (the network asked again with the goal turned about the vehicle,
+// RecoveryConfig); else the stopping trajectory (refusal action stop). ROS-free; policy_node, the parity
+// replay tool and the benchmark all call Decide(). The Python twin is quad_il/inference/decider.py.
 #pragma once
 
 #include <Eigen/Core>
@@ -29,6 +30,19 @@ struct RefusalConfig {
   double stop_min_duration_s = 0.5;
 };
 
+// On a refused plan the network is asked again with the goal direction turned about the vehicle's vertical
+// axis by each angle in turn (degrees, +: counter-clockwise seen from above); the first plan the safety
+// layer accepts is sent. Empty: off. Angles must be finite, non-zero and within [-180, 180]; at most 16.
+struct RecoveryConfig {
+  std::vector<double> goal_yaw_offsets_deg;
+};
+// Throws std::invalid_argument naming the key and the value.
+void ValidateRecoveryConfig(const RecoveryConfig& recovery);
+
+// The goal turned by yaw_deg about the vertical axis through the vehicle (same distance and height).
+Eigen::Vector3d TurnedGoal(const Eigen::Vector3d& p_world_body, const Eigen::Vector3d& goal_world,
+                           double yaw_deg);
+
 struct DecisionInputs {
   double stamp_s = 0.0;  // the depth frame's stamp: the trajectory starts here
   DepthImageView depth;  // metres, REP 118
@@ -41,19 +55,24 @@ struct DecisionTimings {
   double preprocess_ms = 0.0;  // depth + state encoding
   double forward_ms = 0.0;     // the network
   double decode_ms = 0.0;      // output decoding + trajectory
-  double safety_ms = 0.0;      // the safety layer (and the stopping trajectory)
+  double safety_ms = 0.0;      // the safety layer (and the recovery's plans or the stopping trajectory)
 };
 
 struct Decision {
   SafetyResult safety;
   UniformBspline proposed;             // the policy's trajectory (world frame)
-  std::optional<UniformBspline> stop;  // the stopping trajectory when refused with RefusalAction::kStop
-  std::vector<float> depth_x;          // network depth input (input_height x input_width)
-  StateVector state_x{};               // state vector (EncodeState)
-  std::vector<float> y;                // network output (training representation)
+  std::optional<UniformBspline> stop;  // the stopping trajectory when refused, not recovered, action kStop
+  // When the policy's plan was refused and a turned goal gave an accepted plan: that plan and the angle.
+  std::optional<UniformBspline> recovery;
+  double recovery_yaw_deg = 0.0;
+  int recovery_tries = 0;      // turned goals asked (0 when the plan was accepted or recovery is off)
+  std::vector<float> depth_x;  // network depth input (input_height x input_width)
+  StateVector state_x{};       // state vector (EncodeState)
+  std::vector<float> y;        // network output (training representation)
   DecisionTimings timings;
   bool accepted() const { return safety.accepted(); }
-  // The trajectory to send to the tracker: the proposal if accepted, else the stopping trajectory (or none).
+  // The trajectory to send to the tracker: the proposal if accepted, else the recovery's plan, else the
+  // stopping trajectory (or none).
   const UniformBspline* to_send() const;
 };
 
@@ -61,7 +80,7 @@ class PolicyDecider {
  public:
   // Throws std::invalid_argument on an invalid safety or refusal configuration.
   PolicyDecider(std::shared_ptr<const TorchPolicy> policy, const SafetyConfig& safety,
-                const RefusalConfig& refusal);
+                const RefusalConfig& refusal, const RecoveryConfig& recovery = {});
 
   // Throws std::invalid_argument on invalid inputs (non-finite odometry or goal, empty depth).
   Decision Decide(const DecisionInputs& in);
@@ -70,11 +89,13 @@ class PolicyDecider {
   const TorchPolicy& policy() const { return *policy_; }
   const SafetyConfig& safety_config() const { return safety_; }
   const RefusalConfig& refusal_config() const { return refusal_; }
+  const RecoveryConfig& recovery_config() const { return recovery_; }
 
  private:
   std::shared_ptr<const TorchPolicy> policy_;
   SafetyConfig safety_;
   RefusalConfig refusal_;
+  RecoveryConfig recovery_;
   OutputDecoder decoder_;
   VerdictCounts counts_;
 };

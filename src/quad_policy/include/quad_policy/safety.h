@@ -90,6 +90,12 @@ std::vector<double> SafetySampleTimes(const UniformBspline& traj, const SafetyCo
 SafetyResult CheckTrajectory(const UniformBspline& traj, const Eigen::Vector3d& p_world_vehicle,
                              const DepthImageView* depth, const CameraModel& camera, const SafetyConfig& cfg);
 
+// Whether the trajectory stays where the depth frame looked: every sample up to the check horizon (the times
+// of SafetySampleTimes) whose sphere does not hold the camera centre has its centre in front of the camera
+// and projecting inside the image. The recovery's plans must pass this besides CheckTrajectory: a plan
+// turned away from the goal may leave the field of view, where the depth check cannot judge it.
+bool TrajectoryInView(const UniformBspline& traj, const CameraModel& camera, const SafetyConfig& cfg);
+
 // Counts of verdicts (index: SafetyVerdict value).
 struct VerdictCounts {
   std::array<unsigned long, kNumSafetyVerdicts> counts{};

@@ -20,6 +20,7 @@
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
 #include <tf2_ros/transform_listener.h>
+#include <cstdio>
 
 #include <quad_common/strict_yaml.h>
 #include <quad_policy/abi.h>
@@ -72,15 +73,15 @@ class PolicyNode {
     quad_policy::TuneMallocForInference();
     quad_policy::ConfigureTorchThreads(cfg_.num_threads);
     auto policy = std::make_shared<const quad_policy::TorchPolicy>(cfg_.policy_file);
-    decider_ = std::make_unique<quad_policy::PolicyDecider>(policy, cfg_.safety, cfg_.refusal);
+    decider_ = std::make_unique<quad_policy::PolicyDecider>(policy, cfg_.safety, cfg_.refusal, cfg_.recovery);
     const quad_policy::PolicyMeta& m = policy->meta();
     ROS_INFO(
         "policy_node: %s (input %dx%d, state %s, output %s %s, K = %d over %.2f s, network entry %s), "
-        "%d thread(s), refusal action %s",
+        "%d thread(s), refusal action %s, %zu recovery goal turn(s)",
         cfg_.policy_file.c_str(), m.input_width, m.input_height, ToString(m.state_frame),
         ToString(m.output_frame), ToString(m.representation), m.num_ctrl_pts, m.horizon_s,
         policy->has_forward_net() ? "forward_net" : "forward_prepared", quad_policy::TorchThreads(),
-        ToString(cfg_.refusal.action));
+        ToString(cfg_.refusal.action), cfg_.recovery.goal_yaw_offsets_deg.size());
     WarmUp(*policy);
 
     const ros::TransportHints hints = ros::TransportHints().tcpNoDelay();
@@ -310,8 +311,14 @@ class PolicyNode {
     if (!d.accepted()) {
       ROS_WARN_THROTTLE(2.0, "policy_node: plan refused: %s", d.safety.reason.c_str());
     }
+    if (d.recovery) {
+      Count("recovered");
+      char turn[96];
+      std::snprintf(turn, sizeof(turn), "; recovered with the goal turned %g deg", d.recovery_yaw_deg);
+      out->reason += turn;
+    }
     if (send != nullptr) {
-      out->action = d.accepted() ? "policy" : "stop";
+      out->action = d.accepted() ? "policy" : (d.recovery ? "recovery" : "stop");
       out->traj_id = msg.traj_id;
       bspline_pub_.publish(msg);
       SendToTracker(msg);

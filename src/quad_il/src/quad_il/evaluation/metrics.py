@@ -86,6 +86,7 @@ class ControllerSummary:
     decision_ms_p99: float
     decisions: int
     refusals: int
+    recovered: int = 0  # refused decisions for which the recovery found a plan (config recovery)
 
 
 def summarise(controller: str, results: Sequence[EpisodeResult]) -> ControllerSummary:
@@ -116,6 +117,7 @@ def summarise(controller: str, results: Sequence[EpisodeResult]) -> ControllerSu
         decision_ms_p99=percentile(latencies, 0.99),
         decisions=sum(r.decisions for r in rs),
         refusals=refusals,
+        recovered=sum(r.counts.get("recovered", 0) for r in rs),
     )
 
 

@@ -196,7 +196,7 @@ def write_report(
         "",
         "| controller | episodes | success | collision | timeout | reset/take-off failed | mean time to goal "
         "(s) | mean path length (m) | min clearance (m) | median min clearance (m) | decision ms median | "
-        "decision ms p99 | decisions | refusals |",
+        "decision ms p99 | decisions | refusals (recovered) |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for c, s in summaries.items():
@@ -206,7 +206,7 @@ def write_report(
             f"{_fmt(s.other_rate, pct=True)} | {_fmt(s.mean_time_to_goal_s, 1)} | "
             f"{_fmt(s.mean_path_length_m, 1)} | {_fmt(s.min_clearance_m)} | "
             f"{_fmt(s.median_min_clearance_m)} | {_fmt(s.decision_ms_median, 3)} | "
-            f"{_fmt(s.decision_ms_p99, 3)} | {s.decisions} | {s.refusals} |"
+            f"{_fmt(s.decision_ms_p99, 3)} | {s.decisions} | {s.refusals} ({s.recovered}) |"
         )
     for c, why in skipped.items():
         lines.append(f"| {NAMES.get(c, c)} | not run: {why} |||||||||||||")
@@ -216,7 +216,9 @@ def write_report(
         "over the successful ones. Clearance: the minimum over the flight of the distance from the vehicle's "
         "centre to the nearest world box minus the vehicle box's circumscribed radius (a lower bound of the "
         "exact box-to-box clearance; the ground is not counted). Decision latency: policies preprocessing + "
-        "forward + message (policy/decision), expert map update + plan (planner/timing).",
+        "forward + message (policy/decision), expert map update + plan (planner/timing). Refusals: decisions "
+        "whose policy plan the safety layer refused; recovered: of those, the ones the recovery (policy "
+        "config `recovery`) replaced with an accepted plan for a turned goal.",
         "",
     ]
     if summaries:

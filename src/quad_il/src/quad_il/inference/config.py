@@ -6,11 +6,12 @@ an unknown key, a wrong type or an out-of-range value is a `PolicyConfigError` n
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 
 class PolicyConfigError(ValueError):
@@ -38,6 +39,21 @@ class SafetyConfig(_Strict):
     collision_min_pixels: int = Field(ge=1)
 
 
+class RecoveryConfig(_Strict):
+    # On a refused plan, the network is asked again with the goal direction turned about the vehicle's
+    # vertical axis by each angle in turn (degrees, +: counter-clockwise seen from above); the first plan the
+    # safety layer accepts and that stays in view is sent. Empty: off.
+    goal_yaw_offsets_deg: list[float] = Field(max_length=16)
+
+    @field_validator("goal_yaw_offsets_deg")
+    @classmethod
+    def _angles(cls, v: list[float]) -> list[float]:
+        for a in v:
+            if not (math.isfinite(a) and -180.0 <= a <= 180.0 and a != 0.0):
+                raise ValueError(f"angles must be finite, non-zero and within [-180, 180] degrees, got {a}")
+        return v
+
+
 class PolicyNodeConfig(_Strict):
     policy_file: str
     num_threads: int = Field(ge=1, le=64)
@@ -47,6 +63,7 @@ class PolicyNodeConfig(_Strict):
     lockstep_consumer: str = Field(min_length=1)
     send_to_tracker: bool
     refusal: RefusalConfig
+    recovery: RecoveryConfig
     safety: SafetyConfig
 
 

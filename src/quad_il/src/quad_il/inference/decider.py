@@ -1,8 +1,10 @@
 """One decision of the learned policy (the Python twin of quad_policy/policy_decider.h).
 
 depth frame + odometry + goal -> preprocessing -> network -> world-frame B-spline started at the frame's stamp
--> safety layer -> the trajectory to send (the policy's, or the stopping trajectory when refused and the
-refusal action is `stop`). ROS-free: the rospy node, the parity test and the benchmark call `decide`."""
+-> safety layer -> the trajectory to send: the policy's; when refused, the first accepted plan of the recovery
+(the network asked again with the goal turned about the vehicle, `recovery.goal_yaw_offsets_deg`); else the
+stopping trajectory when the refusal action is `stop`. ROS-free: the rospy node, the parity test and the
+benchmark call `decide`."""
 
 from __future__ import annotations
 
@@ -13,10 +15,16 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from quad_il.inference.config import RefusalConfig, SafetyConfig
+from quad_il.inference.config import RecoveryConfig, RefusalConfig, SafetyConfig
 from quad_il.inference.policy import LoadedPolicy
 from quad_il.inference.preprocessing import PolicyPreprocessing, as_row
-from quad_il.inference.safety import CameraModel, SafetyResult, VerdictCounts, check_trajectory
+from quad_il.inference.safety import (
+    CameraModel,
+    SafetyResult,
+    VerdictCounts,
+    check_trajectory,
+    trajectory_in_view,
+)
 from quad_il.inference.trajectory import UniformBspline, braking_trajectory, policy_trajectory
 
 FloatArray = NDArray[np.float64]
@@ -38,7 +46,7 @@ class DecisionTimings:
     preprocess_ms: float = 0.0  # depth + state encoding
     forward_ms: float = 0.0  # the network
     decode_ms: float = 0.0  # output decoding + trajectory
-    safety_ms: float = 0.0  # the safety layer (and the stopping trajectory)
+    safety_ms: float = 0.0  # the safety layer (and the recovery's plans or the stopping trajectory)
 
 
 @dataclass
@@ -50,20 +58,45 @@ class Decision:
     state_x: NDArray[np.float32]  # (13,)
     y: NDArray[np.float32]  # (output_dim,)
     timings: DecisionTimings = field(default_factory=DecisionTimings)
+    # When the policy's plan was refused and a turned goal gave an accepted plan: that plan and the angle.
+    recovery: UniformBspline | None = None
+    recovery_yaw_deg: float | None = None
+    recovery_tries: int = 0  # turned goals asked (0 when the plan was accepted or recovery is off)
 
     @property
     def accepted(self) -> bool:
         return self.safety.accepted
 
     def to_send(self) -> UniformBspline | None:
-        return self.proposed if self.accepted else self.stop
+        if self.accepted:
+            return self.proposed
+        return self.recovery if self.recovery is not None else self.stop
+
+
+def turned_goal(p_world_body: FloatArray, goal_world: FloatArray, yaw_deg: float) -> FloatArray:
+    """The goal turned by yaw_deg about the vertical axis through the vehicle (same distance and height)."""
+    a = math.radians(yaw_deg)
+    c, s = math.cos(a), math.sin(a)
+    d = np.asarray(goal_world, dtype=np.float64).reshape(3) - np.asarray(
+        p_world_body, dtype=np.float64
+    ).reshape(3)
+    return np.asarray(p_world_body, dtype=np.float64).reshape(3) + np.array(
+        [c * d[0] - s * d[1], s * d[0] + c * d[1], d[2]]
+    )
 
 
 class PolicyDecider:
-    def __init__(self, policy: LoadedPolicy, safety: SafetyConfig, refusal: RefusalConfig) -> None:
+    def __init__(
+        self,
+        policy: LoadedPolicy,
+        safety: SafetyConfig,
+        refusal: RefusalConfig,
+        recovery: RecoveryConfig | None = None,
+    ) -> None:
         self.policy = policy
         self.safety = safety
         self.refusal = refusal
+        self.recovery = recovery if recovery is not None else RecoveryConfig(goal_yaw_offsets_deg=[])
         self.pre = PolicyPreprocessing(policy.meta)
         self.counts = VerdictCounts()
 
@@ -84,8 +117,22 @@ class PolicyDecider:
         proposed = policy_trajectory(self.pre.decode(y, p, q), self.policy.meta, inp.stamp_s)
         t3 = time.perf_counter()
         result = check_trajectory(proposed, inp.p_world_body, inp.depth_m, inp.camera, self.safety)
+        recovery: UniformBspline | None = None
+        recovery_yaw: float | None = None
+        tries = 0
+        if not result.accepted:
+            for yaw in self.recovery.goal_yaw_offsets_deg:
+                tries += 1
+                g = as_row(turned_goal(inp.p_world_body, inp.goal_world, yaw), 3, "goal_world")
+                y_r = self.policy.run(depth_x, self.pre.state(p, v, q, g), p, v, q, g)
+                traj = policy_trajectory(self.pre.decode(y_r, p, q), self.policy.meta, inp.stamp_s)
+                if check_trajectory(
+                    traj, inp.p_world_body, inp.depth_m, inp.camera, self.safety
+                ).accepted and trajectory_in_view(traj, inp.camera, self.safety):
+                    recovery, recovery_yaw = traj, yaw
+                    break
         stop = None
-        if not result.accepted and self.refusal.action == "stop":
+        if not result.accepted and recovery is None and self.refusal.action == "stop":
             stop = braking_trajectory(
                 inp.p_world_body,
                 inp.v_world,
@@ -103,4 +150,7 @@ class PolicyDecider:
             state_x=state_x[0].numpy().copy(),
             y=y[0].numpy().copy(),
             timings=DecisionTimings(1e3 * (t1 - t0), 1e3 * (t2 - t1), 1e3 * (t3 - t2), 1e3 * (t4 - t3)),
+            recovery=recovery,
+            recovery_yaw_deg=recovery_yaw,
+            recovery_tries=tries,
         )

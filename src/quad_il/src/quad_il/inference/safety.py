@@ -155,6 +155,26 @@ def safety_sample_times(traj: UniformBspline, cfg: SafetyConfig) -> FloatArray:
     return np.asarray(times, dtype=np.float64)
 
 
+def trajectory_in_view(traj: UniformBspline, camera: CameraModel, cfg: SafetyConfig) -> bool:
+    """Whether every sample up to the check horizon whose sphere does not hold the camera centre has its
+    centre in front of the camera and projecting inside the image (the recovery's plans must pass this
+    besides check_trajectory: a plan turned away from the goal may leave the view, where depth cannot judge
+    it)."""
+    T = np.asarray(camera.T_world_camera, dtype=np.float64)
+    cams = (traj.position(safety_sample_times(traj, cfg)) - T[:3, 3]) @ T[:3, :3]
+    r2 = cfg.vehicle_radius_m * cfg.vehicle_radius_m
+    for cx, cy, cz in cams:
+        if cx * cx + cy * cy + cz * cz <= r2:
+            continue  # the vehicle's own place, as in find_depth_collision
+        if not cz > 0.0:
+            return False
+        u = camera.cx + camera.fx * cx / cz
+        v = camera.cy + camera.fy * cy / cz
+        if not (0.0 <= u <= camera.width - 1.0 and 0.0 <= v <= camera.height - 1.0):
+            return False
+    return True
+
+
 def check_trajectory(
     traj: UniformBspline,
     p_world_vehicle: FloatArray,
