@@ -446,6 +446,17 @@ def make_backbone_head_matter(policy: Policy, seed: int) -> Policy:
     return policy.eval()
 
 
+def raw_inputs(b: int, h: int = 32, w: int = 32) -> tuple[torch.Tensor, ...]:
+    """Policy.forward's inputs for b samples: depth (metres), p, v, a unit quaternion, goal (global RNG)."""
+    return (
+        torch.rand(b, h, w) * 5,
+        torch.randn(b, 3),
+        torch.randn(b, 3),
+        torch.nn.functional.normalize(torch.randn(b, 4), dim=1),
+        torch.randn(b, 3),
+    )
+
+
 def net_inputs(policy: Policy, b: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
     gen = torch.Generator().manual_seed(seed)
     depth_x = torch.rand(b, 1, policy.input_height, policy.input_width, generator=gen)
@@ -522,13 +533,7 @@ def test_export_check_compares_with_the_eager_unfolded_policy(tmp_path: Path) ->
     torch.manual_seed(4)
     cfg = ModelConfig(input_height=32, input_width=32)
     policy = make_backbone_head_matter(build_policy(cfg, 10, 2.0), seed=4)
-    inputs = (
-        torch.rand(2, 32, 32) * 5,
-        torch.randn(2, 3),
-        torch.randn(2, 3),
-        torch.nn.functional.normalize(torch.randn(2, 4), dim=1),
-        torch.randn(2, 3),
-    )
+    inputs = raw_inputs(2)
     meta = policy_metadata(policy, cfg.model_dump(mode="json"))
     assert export_torchscript(policy, tmp_path / "ok.ts", meta, inputs) <= 1e-4
     with pytest.raises(RuntimeError, match="differs from the eager policy"):
@@ -619,13 +624,7 @@ def test_export_leaves_the_callers_policy_untouched(
     before = {k: (v.clone(), v.stride()) for k, v in policy.state_dict().items()}
     layers = (policy.net.backbone.classifier[-1], policy.net.depth_mlp[0])
     depth_x, state_x = net_inputs(policy, 3, seed=10)
-    inputs = (
-        torch.rand(3, 32, 32) * 5,
-        torch.randn(3, 3),
-        torch.randn(3, 3),
-        torch.nn.functional.normalize(torch.randn(3, 4), dim=1),
-        torch.randn(3, 3),
-    )
+    inputs = raw_inputs(3)
     export_torchscript(policy, tmp_path / "p.ts", policy_metadata(policy, {}), inputs)
     assert policy.training
     after = policy.state_dict()
