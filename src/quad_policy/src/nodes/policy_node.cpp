@@ -20,7 +20,6 @@
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
 #include <tf2_ros/transform_listener.h>
-#include <cstdio>
 
 #include <quad_common/strict_yaml.h>
 #include <quad_policy/abi.h>
@@ -32,6 +31,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <deque>
 #include <map>
 #include <memory>
