@@ -32,7 +32,8 @@ struct RefusalConfig {
 
 // On a refused plan the network is asked again with the goal direction turned about the vehicle's vertical
 // axis by each angle in turn (degrees, +: counter-clockwise seen from above); the first plan the safety
-// layer accepts is sent. Empty: off. Angles must be finite, non-zero and within [-180, 180]; at most 16.
+// layer accepts and that stays in view (TrajectoryInView) is sent. Empty: off. Angles must be finite,
+// non-zero and within [-180, 180]; at most 16.
 struct RecoveryConfig {
   std::vector<double> goal_yaw_offsets_deg;
 };
@@ -78,7 +79,7 @@ struct Decision {
 
 class PolicyDecider {
  public:
-  // Throws std::invalid_argument on an invalid safety or refusal configuration.
+  // Throws std::invalid_argument on an invalid safety, refusal or recovery configuration.
   PolicyDecider(std::shared_ptr<const TorchPolicy> policy, const SafetyConfig& safety,
                 const RefusalConfig& refusal, const RecoveryConfig& recovery = {});
 
