@@ -77,12 +77,9 @@ def turned_goal(p_world_body: FloatArray, goal_world: FloatArray, yaw_deg: float
     """The goal turned by yaw_deg about the vertical axis through the vehicle (same distance and height)."""
     a = math.radians(yaw_deg)
     c, s = math.cos(a), math.sin(a)
-    d = np.asarray(goal_world, dtype=np.float64).reshape(3) - np.asarray(
-        p_world_body, dtype=np.float64
-    ).reshape(3)
-    return np.asarray(p_world_body, dtype=np.float64).reshape(3) + np.array(
-        [c * d[0] - s * d[1], s * d[0] + c * d[1], d[2]]
-    )
+    p = np.asarray(p_world_body, dtype=np.float64).reshape(3)
+    d = np.asarray(goal_world, dtype=np.float64).reshape(3) - p
+    return p + np.array([c * d[0] - s * d[1], s * d[0] + c * d[1], d[2]])
 
 
 class PolicyDecider:
