@@ -4,7 +4,9 @@ both network entries, metadata and config errors, trajectories, the decider, fix
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +14,14 @@ import pytest
 import torch
 import yaml
 
-from quad_il.inference.config import PolicyConfigError, RecoveryConfig, config_from_tree, load_policy_config
+from quad_il.inference.config import (
+    PolicyConfigError,
+    RecoveryConfig,
+    RefusalConfig,
+    SafetyConfig,
+    config_from_tree,
+    load_policy_config,
+)
 from quad_il.inference.decider import DecisionInputs, PolicyDecider, turned_goal
 from quad_il.inference.fixture import DecisionFixture, FixtureError, read_fixture, write_fixture
 from quad_il.inference.meta import PolicyFormatError, parse_policy_meta
@@ -327,7 +336,7 @@ def test_the_recovery_turns_the_goal_until_a_plan_is_accepted_and_in_view(polici
     assert off.recovery is None and off.recovery_tries == 0 and off.to_send() is off.stop
 
     # 60 deg: clear of the wall but out of the image (refused by the view test); 30 deg: accepted.
-    on = RecoveryConfig(goal_yaw_offsets_deg=[60.0, 30.0, -30.0])
+    on = RecoveryConfig(goal_yaw_offsets_deg=[60.0, 30.0, -30.0], steer_clearance_m=0.0)
     decider = PolicyDecider(policy, cfg.safety, cfg.refusal, on)
     d = decider.decide(inp)
     assert d.safety.verdict == SafetyVerdict.COLLISION_IN_DEPTH  # the verdict is the policy's own plan's
@@ -338,7 +347,8 @@ def test_the_recovery_turns_the_goal_until_a_plan_is_accepted_and_in_view(polici
     assert decider.counts.counts[SafetyVerdict.COLLISION_IN_DEPTH] == 1
 
     # Only turns that stay blocked or leave the view: no recovery, the stopping trajectory as before.
-    none = PolicyDecider(policy, cfg.safety, cfg.refusal, RecoveryConfig(goal_yaw_offsets_deg=[60.0, 10.0]))
+    only_bad = RecoveryConfig(goal_yaw_offsets_deg=[60.0, 10.0], steer_clearance_m=0.0)
+    none = PolicyDecider(policy, cfg.safety, cfg.refusal, only_bad)
     d = none.decide(inp)
     assert d.recovery is None and d.recovery_tries == 2 and d.to_send() is d.stop
 
@@ -354,6 +364,80 @@ def test_the_recovery_turns_the_goal_until_a_plan_is_accepted_and_in_view(polici
     )
     d = decider.decide(free)
     assert d.accepted and d.recovery_tries == 0 and d.to_send() is d.proposed
+
+
+def test_steering_turns_away_from_a_wall_that_an_accepted_plan_comes_near(policies) -> None:
+    cfg = load_policy_config(CONFIG)
+    assert cfg.recovery.steer_clearance_m == 0.0  # off by default
+    policy = _GoalLine(policies["world"].path)
+    q = np.array([0.0, 0.0, 0.0, 1.0])
+    depth = np.full((50, 70), np.inf, np.float32)
+    depth[:, 30:40] = 2.2  # a narrow wall 2.2 m ahead: the straight plan ends 0.7 m from it
+    inp = DecisionInputs(2.0, depth, _camera(), np.zeros(3), np.zeros(3), q, np.array([10.0, 0, 0]))
+
+    turns = [60.0, 10.0, 30.0, -30.0]
+    plain = PolicyDecider(
+        policy, cfg.safety, cfg.refusal, RecoveryConfig(goal_yaw_offsets_deg=turns, steer_clearance_m=0.0)
+    )
+    d = plain.decide(inp)
+    assert d.accepted and d.recovery_tries == 0 and d.to_send() is d.proposed  # steering off: no search
+
+    steer = RecoveryConfig(goal_yaw_offsets_deg=turns, steer_clearance_m=0.9)
+    decider = PolicyDecider(policy, cfg.safety, cfg.refusal, steer)
+    d = decider.decide(inp)
+    # 60 deg leaves the image, 10 deg still passes within 0.9 m of the wall, 30 deg keeps 0.9 m.
+    assert d.accepted and d.steered and d.recovery_yaw_deg == 30.0 and d.recovery_tries == 3
+    assert d.to_send() is d.recovery and d.stop is None
+    heading = d.recovery.position(np.array([1.0]))[0]
+    assert np.degrees(np.arctan2(heading[1], heading[0])) == pytest.approx(30.0, abs=1e-3)
+
+    # No turn keeps the clearance: the accepted plan is flown as it is.
+    d = PolicyDecider(
+        policy,
+        cfg.safety,
+        cfg.refusal,
+        RecoveryConfig(goal_yaw_offsets_deg=[60.0, 10.0], steer_clearance_m=0.9),
+    ).decide(inp)
+    assert d.accepted and not d.steered and d.recovery is None and d.recovery_tries == 2
+    assert d.to_send() is d.proposed
+
+    # A plan that keeps the clearance is not steered; a refused one is recovered (not steered) as before.
+    d = decider.decide(dataclasses.replace(inp, depth_m=np.full((50, 70), 9.0, np.float32)))
+    assert d.accepted and d.recovery_tries == 0 and d.to_send() is d.proposed
+    d = decider.decide(dataclasses.replace(inp, depth_m=_wall_ahead()))
+    assert not d.accepted and not d.steered and d.recovery_yaw_deg == 30.0
+
+
+@pytest.mark.parametrize(
+    ("steer", "radius", "angles", "message"),
+    [
+        ("0.3", "0.4", "[20.0]", r"steer_clearance_m \(0.3\) must be 0 \(off\) or greater than safety"),
+        ("1.0", "0.4", "[]", "goal_yaw_offsets_deg is empty: no turns to steer by"),
+        ("-1.0", "0.4", "[20.0]", "recovery.steer_clearance_m.*greater than or equal to 0"),
+    ],
+)
+def test_steering_config_errors_name_the_key(
+    tmp_path: Path, steer: str, radius: str, angles: str, message: str, policies
+) -> None:
+    text = (
+        CONFIG.read_text()
+        .replace("steer_clearance_m: 0.0", f"steer_clearance_m: {steer}")
+        .replace("goal_yaw_offsets_deg: []", f"goal_yaw_offsets_deg: {angles}")
+    )
+    text = re.sub(r"vehicle_radius_m: [0-9.]+", f"vehicle_radius_m: {radius}", text)
+    bad = tmp_path / "policy.yaml"
+    bad.write_text(text)
+    with pytest.raises(PolicyConfigError, match=message):
+        load_policy_config(bad)
+    if float(steer) >= 0.0:  # the decider checks the same when built from parts
+        tree = yaml.safe_load(text)
+        with pytest.raises(ValueError, match=message):
+            PolicyDecider(
+                LoadedPolicy(policies["world"].path),
+                SafetyConfig.model_validate(tree["safety"]),
+                RefusalConfig.model_validate(tree["refusal"]),
+                RecoveryConfig.model_validate(tree["recovery"]),
+            )
 
 
 @pytest.mark.parametrize(

@@ -29,6 +29,7 @@ ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / "config" / "policy.yaml"
 TOL = 1e-4  # the parity tolerance on the output
 RECOVERY_TURNS = [30.0, -30.0, 60.0, -60.0]
+STEER_CLEARANCE_M = 1.0
 
 
 def _find_tool(name: str) -> Path | None:
@@ -118,6 +119,17 @@ POLICIES = {
         ),
         True,
     ),
+    # Plans that continue the vehicle's motion (output prior): they reach surfaces, so the steering searches.
+    "local_bspline_cv_prior": (
+        ModelConfig(
+            input_height=32,
+            input_width=32,
+            state_frame="local",
+            output_frame="local",
+            output_prior="constant_velocity",
+        ),
+        False,
+    ),
 }
 
 
@@ -132,10 +144,12 @@ def run_both(request: pytest.FixtureRequest, recorded, tmp_path_factory):
     policy = LoadedPolicy(policy_path)
     trajs = _designed_trajectories(fx, 10, policy.meta.knot_dt_s)
     np.save(work / "trajectories.npy", trajs)
-    # The repository's config with the recovery on, so both languages also run their recovery loops.
+    # The repository's config with the recovery and the steering on, so both languages also run those loops.
     config = work / "policy.yaml"
     config.write_text(
-        CONFIG.read_text().replace("goal_yaw_offsets_deg: []", f"goal_yaw_offsets_deg: {RECOVERY_TURNS}")
+        CONFIG.read_text()
+        .replace("goal_yaw_offsets_deg: []", f"goal_yaw_offsets_deg: {RECOVERY_TURNS}")
+        .replace("steer_clearance_m: 0.0", f"steer_clearance_m: {STEER_CLEARANCE_M}")
     )
     out = work / "cpp"
     proc = subprocess.run(
@@ -160,6 +174,7 @@ def run_both(request: pytest.FixtureRequest, recorded, tmp_path_factory):
     cpp = {p.stem: np.load(p) for p in out.glob("*.npy")}
     cfg = load_policy_config(config)
     assert cfg.recovery.goal_yaw_offsets_deg == RECOVERY_TURNS
+    assert cfg.recovery.steer_clearance_m == STEER_CLEARANCE_M
     decider = PolicyDecider(policy, cfg.safety, cfg.refusal, cfg.recovery)
     py = []
     for i in range(len(fx)):
@@ -210,17 +225,22 @@ def test_network_outputs_and_control_points_agree_within_the_tolerance(run_both)
 
 
 def test_trajectory_layout_and_decisions_agree(run_both) -> None:
-    _, policy, _, cpp, py, _, _ = run_both
+    name, policy, _, cpp, py, _, _ = run_both
     np.testing.assert_allclose(cpp["knots"], py[0].proposed.knots(), rtol=0, atol=1e-12)
     assert cpp["knots"][3] == 0.0 and len(cpp["knots"]) == policy.meta.num_ctrl_pts + 4
     np.testing.assert_array_equal(cpp["verdict"], [int(d.safety.verdict) for d in py])
     kinds = [
-        0 if d.to_send() is None else (1 if d.accepted else (3 if d.recovery is not None else 2)) for d in py
+        0
+        if d.to_send() is None
+        else ((4 if d.steered else 3) if d.recovery is not None else (1 if d.accepted else 2))
+        for d in py
     ]
     np.testing.assert_array_equal(cpp["sent_kind"], kinds)
-    # The recovery: as many turned goals asked, the same one accepted, the same plan.
+    # The recovery and the steering: as many turned goals asked, the same one taken, the same plan.
     np.testing.assert_array_equal(cpp["recovery_tries"], [d.recovery_tries for d in py])
-    assert all(d.recovery_tries == (0 if d.accepted else len(RECOVERY_TURNS)) or d.recovery for d in py)
+    assert all(d.recovery_tries in (0, len(RECOVERY_TURNS)) or d.recovery for d in py)
+    if name == "local_bspline_cv_prior":
+        assert any(d.accepted and d.recovery_tries > 0 for d in py)  # the steering searched
     py_yaw = [np.nan if d.recovery_yaw_deg is None else d.recovery_yaw_deg for d in py]
     np.testing.assert_array_equal(cpp["recovery_yaw_deg"], py_yaw)
     for i, d in enumerate(py):

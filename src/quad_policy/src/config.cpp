@@ -35,11 +35,7 @@ PolicyNodeConfig Load(quad_common::StrictYaml y) {
   c.refusal.stop_max_decel_mps2 = y.Get<double>("refusal.stop_max_decel_mps2", Positive());
   c.refusal.stop_min_duration_s = y.Get<double>("refusal.stop_min_duration_s", Positive());
   c.recovery.goal_yaw_offsets_deg = y.Get<std::vector<double>>("recovery.goal_yaw_offsets_deg");
-  try {
-    ValidateRecoveryConfig(c.recovery);
-  } catch (const std::invalid_argument& e) {
-    throw quad_common::ConfigError(y.source() + ": " + e.what());
-  }
+  c.recovery.steer_clearance_m = y.Get<double>("recovery.steer_clearance_m", NonNegative());
   c.safety.enabled = y.Get<bool>("safety.enabled");
   c.safety.max_vel_mps = y.Get<double>("safety.max_vel_mps", Positive());
   c.safety.max_acc_mps2 = y.Get<double>("safety.max_acc_mps2", Positive());
@@ -48,6 +44,11 @@ PolicyNodeConfig Load(quad_common::StrictYaml y) {
   c.safety.sample_dt_s = y.Get<double>("safety.sample_dt_s", Positive());
   c.safety.check_horizon_s = y.Get<double>("safety.check_horizon_s", NonNegative());
   c.safety.collision_min_pixels = y.Get<int>("safety.collision_min_pixels", AtLeast(1));
+  try {
+    ValidateRecoveryConfig(c.recovery, c.safety);
+  } catch (const std::invalid_argument& e) {
+    throw quad_common::ConfigError(y.source() + ": " + e.what());
+  }
   y.CheckAllKeysUsed();
   return c;
 }

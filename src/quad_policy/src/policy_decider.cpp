@@ -10,8 +10,8 @@ namespace quad_policy {
 const char* ToString(RefusalAction action) { return action == RefusalAction::kHover ? "hover" : "stop"; }
 
 const UniformBspline* Decision::to_send() const {
-  if (accepted()) return &proposed;
   if (recovery) return &*recovery;
+  if (accepted()) return &proposed;
   return stop ? &*stop : nullptr;
 }
 
@@ -53,6 +53,24 @@ void ValidateRecoveryConfig(const RecoveryConfig& r) {
           std::to_string(a));
     }
   }
+  if (!(std::isfinite(r.steer_clearance_m) && r.steer_clearance_m >= 0.0)) {
+    throw std::invalid_argument("recovery.steer_clearance_m must be >= 0 (0: off), got " +
+                                std::to_string(r.steer_clearance_m));
+  }
+}
+
+void ValidateRecoveryConfig(const RecoveryConfig& r, const SafetyConfig& safety) {
+  ValidateRecoveryConfig(r);
+  if (r.steer_clearance_m == 0.0) return;
+  if (!(r.steer_clearance_m > safety.vehicle_radius_m)) {
+    throw std::invalid_argument("recovery.steer_clearance_m (" + std::to_string(r.steer_clearance_m) +
+                                ") must be 0 (off) or greater than safety.vehicle_radius_m (" +
+                                std::to_string(safety.vehicle_radius_m) + ")");
+  }
+  if (r.goal_yaw_offsets_deg.empty()) {
+    throw std::invalid_argument(
+        "recovery.steer_clearance_m is set but recovery.goal_yaw_offsets_deg is empty: no turns to steer by");
+  }
 }
 
 PolicyDecider::PolicyDecider(std::shared_ptr<const TorchPolicy> policy, const SafetyConfig& safety,
@@ -64,7 +82,7 @@ PolicyDecider::PolicyDecider(std::shared_ptr<const TorchPolicy> policy, const Sa
       decoder_(policy_ ? policy_->meta() : throw std::invalid_argument("PolicyDecider needs a policy")) {
   ValidateSafetyConfig(safety_);
   ValidateRefusal(refusal_);
-  ValidateRecoveryConfig(recovery_);
+  ValidateRecoveryConfig(recovery_, safety_);
 }
 
 Decision PolicyDecider::Decide(const DecisionInputs& in) {
@@ -89,16 +107,28 @@ Decision PolicyDecider::Decide(const DecisionInputs& in) {
 
   t0 = std::chrono::steady_clock::now();
   d.safety = CheckTrajectory(d.proposed, in.state.p_world_body, &in.depth, in.camera, safety_);
-  if (!d.accepted()) {
+  // A refused proposal is replaced by the first turned plan that the safety layer accepts and that stays in
+  // view. Steering: an accepted proposal that comes nearer than steer_clearance_m to what the depth frame
+  // shows is replaced by the first turned plan that, besides, keeps steer_clearance_m. (The wider sphere
+  // skips the samples it holds the camera in, so it adds to the safety layer's test, never replaces it.)
+  SafetyConfig steer = safety_;
+  steer.vehicle_radius_m = recovery_.steer_clearance_m;
+  const bool steering =
+      d.accepted() && recovery_.steer_clearance_m > 0.0 &&
+      !CheckTrajectory(d.proposed, in.state.p_world_body, &in.depth, in.camera, steer).accepted();
+  if (!d.accepted() || steering) {
     for (double yaw : recovery_.goal_yaw_offsets_deg) {
       ++d.recovery_tries;
       const Eigen::Vector3d goal = TurnedGoal(in.state.p_world_body, in.goal_world, yaw);
       const std::vector<float> y = policy_->Run(d.depth_x, EncodeState(in.state, goal, meta), in.state, goal);
       UniformBspline traj = PolicyTrajectory(decoder_.Decode(y, in.state), meta, in.stamp_s);
       if (CheckTrajectory(traj, in.state.p_world_body, &in.depth, in.camera, safety_).accepted() &&
+          (!steering ||
+           CheckTrajectory(traj, in.state.p_world_body, &in.depth, in.camera, steer).accepted()) &&
           TrajectoryInView(traj, in.camera, safety_)) {
         d.recovery = std::move(traj);
         d.recovery_yaw_deg = yaw;
+        d.steered = steering;
         break;
       }
     }

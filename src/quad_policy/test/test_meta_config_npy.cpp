@@ -169,6 +169,37 @@ TEST(PolicyNodeConfig, RecoveryTurnsAreReadAndBadOnesNamed) {
             std::string::npos);
 }
 
+TEST(PolicyNodeConfig, SteeringClearanceIsReadAndBadValuesNamed) {
+  EXPECT_EQ(LoadPolicyNodeConfig(QUAD_IL_CONFIG_DIR "/policy.yaml").recovery.steer_clearance_m, 0.0);  // off
+  const auto with = [](const std::string& steer, const std::string& turns) {
+    std::string text = RepoConfigWith("steer_clearance_m: 0.0", "steer_clearance_m: " + steer);
+    const std::string key = "goal_yaw_offsets_deg: []";
+    return text.replace(text.find(key), key.size(), "goal_yaw_offsets_deg: " + turns);
+  };
+  EXPECT_EQ(PolicyNodeConfigFromString(with("0.9", "[20]"), "c").recovery.steer_clearance_m, 0.9);
+  // policy.yaml's vehicle_radius_m is 0.25.
+  EXPECT_NE(ErrorOf([&] { PolicyNodeConfigFromString(with("0.2", "[20]"), "c"); })
+                .find("recovery.steer_clearance_m (0.200000) must be 0 (off) or greater than "
+                      "safety.vehicle_radius_m (0.250000)"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf([&] {
+              PolicyNodeConfigFromString(with("0.9", "[]"), "c");
+            }).find("recovery.goal_yaw_offsets_deg is empty: no turns to steer by"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf([&] {
+              PolicyNodeConfigFromString(with("-1", "[20]"), "c");
+            }).find("recovery.steer_clearance_m"),
+            std::string::npos);
+  // The decider checks the same when built from parts.
+  RecoveryConfig r;
+  r.steer_clearance_m = 0.2;
+  r.goal_yaw_offsets_deg = {20.0};
+  SafetyConfig s;
+  s.vehicle_radius_m = 0.25;
+  EXPECT_NE(ErrorOf([&] { ValidateRecoveryConfig(r, s); }).find("greater than safety.vehicle_radius_m"),
+            std::string::npos);
+}
+
 class TempDir : public ::testing::Test {
  protected:
   void SetUp() override {

@@ -12,7 +12,8 @@
 // frame i's depth, camera and odometry: traj_verdict.npy, traj_value.npy (designed cases for every refusal
 // reason) and traj_in_view.npy (TrajectoryInView). The recovery (the config's recovery section) writes
 // recovery_tries.npy, recovery_yaw_deg.npy (NaN: not recovered) and recovery_ctrl.npy (zeros: not
-// recovered); sent_kind.npy is 0 nothing, 1 the policy's plan, 2 the stopping trajectory, 3 the recovery's.
+// recovered); sent_kind.npy is 0 nothing, 1 the policy's plan, 2 the stopping trajectory, 3 the recovery's, 4
+// the recovery's replacing an accepted plan (steering).
 //
 // Exit status: 0 done, 1 bad input (message on stderr), 2 usage.
 #include <filesystem>
@@ -90,7 +91,7 @@ int main(int argc, char** argv) {
       verdict.push_back(static_cast<int32_t>(d.safety.verdict));
       safety_value.push_back(d.safety.value);
       const UniformBspline* sent = d.to_send();
-      sent_kind.push_back(sent == nullptr ? 0 : (d.accepted() ? 1 : (d.recovery ? 3 : 2)));
+      sent_kind.push_back(sent == nullptr ? 0 : (d.recovery ? (d.steered ? 4 : 3) : (d.accepted() ? 1 : 2)));
       recovery_tries.push_back(d.recovery_tries);
       if (d.recovery) {
         recovery_yaw.push_back(d.recovery_yaw_deg);

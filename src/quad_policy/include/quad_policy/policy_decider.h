@@ -34,11 +34,19 @@ struct RefusalConfig {
 // axis by each angle in turn (degrees, +: counter-clockwise seen from above); the first plan the safety
 // layer accepts and that stays in view (TrajectoryInView) is sent. Empty: off. Angles must be finite,
 // non-zero and within [-180, 180]; at most 16.
+// Steering (steer_clearance_m > 0, greater than the safety layer's vehicle_radius_m): an accepted plan that
+// passes nearer than steer_clearance_m to what the depth frame shows (CheckTrajectory with this radius) makes
+// the decider try the same turned goals; the first plan that keeps steer_clearance_m and stays in view is
+// sent instead. The vehicle turns away from a box while it is still far enough for the turn to stay in view,
+// instead of stopping in front of it. 0: off.
 struct RecoveryConfig {
   std::vector<double> goal_yaw_offsets_deg;
+  double steer_clearance_m = 0.0;
 };
-// Throws std::invalid_argument naming the key and the value.
+// Throws std::invalid_argument naming the key and the value. With a safety config, also checks that a
+// non-zero steer_clearance_m exceeds safety.vehicle_radius_m and has turns to try.
 void ValidateRecoveryConfig(const RecoveryConfig& recovery);
+void ValidateRecoveryConfig(const RecoveryConfig& recovery, const SafetyConfig& safety);
 
 // The goal turned by yaw_deg about the vertical axis through the vehicle (same distance and height).
 Eigen::Vector3d TurnedGoal(const Eigen::Vector3d& p_world_body, const Eigen::Vector3d& goal_world,
@@ -63,17 +71,19 @@ struct Decision {
   SafetyResult safety;
   UniformBspline proposed;             // the policy's trajectory (world frame)
   std::optional<UniformBspline> stop;  // the stopping trajectory when refused, not recovered, action kStop
-  // When the policy's plan was refused and a turned goal gave an accepted plan: that plan and the angle.
+  // When the policy's plan was refused (or, steering, came nearer than steer_clearance_m) and a turned goal
+  // gave a plan that passed: that plan and the angle.
   std::optional<UniformBspline> recovery;
   double recovery_yaw_deg = 0.0;
-  int recovery_tries = 0;      // turned goals asked (0 when the plan was accepted or recovery is off)
+  int recovery_tries = 0;      // turned goals asked (0 when no search ran)
+  bool steered = false;        // the recovery replaces an accepted plan (steering), not a refused one
   std::vector<float> depth_x;  // network depth input (input_height x input_width)
   StateVector state_x{};       // state vector (EncodeState)
   std::vector<float> y;        // network output (training representation)
   DecisionTimings timings;
   bool accepted() const { return safety.accepted(); }
-  // The trajectory to send to the tracker: the proposal if accepted, else the recovery's plan, else the
-  // stopping trajectory (or none).
+  // The trajectory to send to the tracker: the recovery's plan if there is one, else the proposal if
+  // accepted, else the stopping trajectory (or none).
   const UniformBspline* to_send() const;
 };
 

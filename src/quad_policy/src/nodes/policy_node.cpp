@@ -77,11 +77,12 @@ class PolicyNode {
     const quad_policy::PolicyMeta& m = policy->meta();
     ROS_INFO(
         "policy_node: %s (input %dx%d, state %s, output %s %s, K = %d over %.2f s, network entry %s), "
-        "%d thread(s), refusal action %s, %zu recovery goal turn(s)",
+        "%d thread(s), refusal action %s, %zu recovery goal turn(s), steering clearance %.2f m",
         cfg_.policy_file.c_str(), m.input_width, m.input_height, ToString(m.state_frame),
         ToString(m.output_frame), ToString(m.representation), m.num_ctrl_pts, m.horizon_s,
         policy->has_forward_net() ? "forward_net" : "forward_prepared", quad_policy::TorchThreads(),
-        ToString(cfg_.refusal.action), cfg_.recovery.goal_yaw_offsets_deg.size());
+        ToString(cfg_.refusal.action), cfg_.recovery.goal_yaw_offsets_deg.size(),
+        cfg_.recovery.steer_clearance_m);
     WarmUp(*policy);
 
     const ros::TransportHints hints = ros::TransportHints().tcpNoDelay();
@@ -312,13 +313,14 @@ class PolicyNode {
       ROS_WARN_THROTTLE(2.0, "policy_node: plan refused: %s", d.safety.reason.c_str());
     }
     if (d.recovery) {
-      Count("recovered");
+      Count(d.steered ? "steered" : "recovered");
       char turn[96];
-      std::snprintf(turn, sizeof(turn), "; recovered with the goal turned %g deg", d.recovery_yaw_deg);
+      std::snprintf(turn, sizeof(turn), "; %s with the goal turned %g deg",
+                    d.steered ? "steered" : "recovered", d.recovery_yaw_deg);
       out->reason += turn;
     }
     if (send != nullptr) {
-      out->action = d.accepted() ? "policy" : (d.recovery ? "recovery" : "stop");
+      out->action = d.recovery ? (d.steered ? "steer" : "recovery") : (d.accepted() ? "policy" : "stop");
       out->traj_id = msg.traj_id;
       bspline_pub_.publish(msg);
       SendToTracker(msg);

@@ -87,6 +87,7 @@ class ControllerSummary:
     decisions: int
     refusals: int
     recovered: int = 0  # refused decisions for which the recovery found a plan (config recovery)
+    steered: int = 0  # accepted decisions replaced by a turned plan keeping recovery.steer_clearance_m
 
 
 def summarise(controller: str, results: Sequence[EpisodeResult]) -> ControllerSummary:
@@ -118,15 +119,5 @@ def summarise(controller: str, results: Sequence[EpisodeResult]) -> ControllerSu
         decisions=sum(r.decisions for r in rs),
         refusals=refusals,
         recovered=sum(r.counts.get("recovered", 0) for r in rs),
+        steered=sum(r.counts.get("steered", 0) for r in rs),
     )
-
-
-REFUSAL_NAMES = frozenset(
-    {
-        "non_finite_output",
-        "velocity_limit",
-        "acceleration_limit",
-        "start_far_from_vehicle",
-        "collision_in_depth",
-    }
-)

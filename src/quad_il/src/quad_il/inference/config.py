@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 
 class PolicyConfigError(ValueError):
@@ -44,6 +44,10 @@ class RecoveryConfig(_Strict):
     # vertical axis by each angle in turn (degrees, +: counter-clockwise seen from above); the first plan the
     # safety layer accepts and that stays in view is sent. Empty: off.
     goal_yaw_offsets_deg: list[float] = Field(max_length=16)
+    # Steering: an accepted plan passing nearer than this to what the depth frame shows makes the decider try
+    # the same turns; the first that also keeps this distance (and stays in view) replaces it. 0: off; else it
+    # must exceed safety.vehicle_radius_m (checked in PolicyNodeConfig).
+    steer_clearance_m: float = Field(ge=0.0, allow_inf_nan=False)
 
     @field_validator("goal_yaw_offsets_deg")
     @classmethod
@@ -65,6 +69,28 @@ class PolicyNodeConfig(_Strict):
     refusal: RefusalConfig
     recovery: RecoveryConfig
     safety: SafetyConfig
+
+    @model_validator(mode="after")
+    def _steering(self) -> PolicyNodeConfig:
+        check_steering(self.recovery, self.safety)
+        return self
+
+
+def check_steering(recovery: RecoveryConfig, safety: SafetyConfig) -> None:
+    """ValueError unless steering is off or has a clearance above the safety radius and turns to try."""
+    r = recovery.steer_clearance_m
+    if r == 0.0:
+        return
+    if not r > safety.vehicle_radius_m:
+        raise ValueError(
+            f"recovery.steer_clearance_m ({r:g}) must be 0 (off) or greater than safety.vehicle_radius_m "
+            f"({safety.vehicle_radius_m:g})"
+        )
+    if not recovery.goal_yaw_offsets_deg:
+        raise ValueError(
+            "recovery.steer_clearance_m is set but recovery.goal_yaw_offsets_deg is empty: "
+            "no turns to steer by"
+        )
 
 
 def config_from_tree(tree: Any, source: str = "<config>") -> PolicyNodeConfig:

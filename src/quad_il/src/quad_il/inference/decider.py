@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from quad_il.inference.config import RecoveryConfig, RefusalConfig, SafetyConfig
+from quad_il.inference.config import RecoveryConfig, RefusalConfig, SafetyConfig, check_steering
 from quad_il.inference.policy import LoadedPolicy
 from quad_il.inference.preprocessing import PolicyPreprocessing, as_row
 from quad_il.inference.safety import (
@@ -58,19 +58,21 @@ class Decision:
     state_x: NDArray[np.float32]  # (13,)
     y: NDArray[np.float32]  # (output_dim,)
     timings: DecisionTimings = field(default_factory=DecisionTimings)
-    # When the policy's plan was refused and a turned goal gave an accepted plan: that plan and the angle.
+    # When the policy's plan was refused (or, steering, came nearer than steer_clearance_m) and a turned goal
+    # gave a plan that passed: that plan and the angle.
     recovery: UniformBspline | None = None
     recovery_yaw_deg: float | None = None
-    recovery_tries: int = 0  # turned goals asked (0 when the plan was accepted or recovery is off)
+    recovery_tries: int = 0  # turned goals asked (0 when no search ran)
+    steered: bool = False  # the recovery replaces an accepted plan (steering), not a refused one
 
     @property
     def accepted(self) -> bool:
         return self.safety.accepted
 
     def to_send(self) -> UniformBspline | None:
-        if self.accepted:
-            return self.proposed
-        return self.recovery if self.recovery is not None else self.stop
+        if self.recovery is not None:
+            return self.recovery
+        return self.proposed if self.accepted else self.stop
 
 
 def turned_goal(p_world_body: FloatArray, goal_world: FloatArray, yaw_deg: float) -> FloatArray:
@@ -93,7 +95,13 @@ class PolicyDecider:
         self.policy = policy
         self.safety = safety
         self.refusal = refusal
-        self.recovery = recovery if recovery is not None else RecoveryConfig(goal_yaw_offsets_deg=[])
+        self.recovery = (
+            recovery
+            if recovery is not None
+            else RecoveryConfig(goal_yaw_offsets_deg=[], steer_clearance_m=0.0)
+        )
+        check_steering(self.recovery, safety)
+        self.steer = safety.model_copy(update={"vehicle_radius_m": self.recovery.steer_clearance_m})
         self.pre = PolicyPreprocessing(policy.meta)
         self.counts = VerdictCounts()
 
@@ -117,15 +125,31 @@ class PolicyDecider:
         recovery: UniformBspline | None = None
         recovery_yaw: float | None = None
         tries = 0
-        if not result.accepted:
+        # A refused proposal is replaced by the first turned plan that the safety layer accepts and that
+        # stays in view. Steering: an accepted proposal that comes nearer than steer_clearance_m is replaced
+        # by the first turned plan that, besides, keeps steer_clearance_m (the wider sphere skips the samples
+        # it holds the camera in, so it adds to the safety layer's test, never replaces it).
+        steering = (
+            result.accepted
+            and self.recovery.steer_clearance_m > 0.0
+            and not check_trajectory(proposed, inp.p_world_body, inp.depth_m, inp.camera, self.steer).accepted
+        )
+        if not result.accepted or steering:
             for yaw in self.recovery.goal_yaw_offsets_deg:
                 tries += 1
                 g = as_row(turned_goal(inp.p_world_body, inp.goal_world, yaw), 3, "goal_world")
                 y_r = self.policy.run(depth_x, self.pre.state(p, v, q, g), p, v, q, g)
                 traj = policy_trajectory(self.pre.decode(y_r, p, q), self.policy.meta, inp.stamp_s)
-                if check_trajectory(
-                    traj, inp.p_world_body, inp.depth_m, inp.camera, self.safety
-                ).accepted and trajectory_in_view(traj, inp.camera, self.safety):
+                if (
+                    check_trajectory(traj, inp.p_world_body, inp.depth_m, inp.camera, self.safety).accepted
+                    and (
+                        not steering
+                        or check_trajectory(
+                            traj, inp.p_world_body, inp.depth_m, inp.camera, self.steer
+                        ).accepted
+                    )
+                    and trajectory_in_view(traj, inp.camera, self.safety)
+                ):
                     recovery, recovery_yaw = traj, yaw
                     break
         stop = None
@@ -150,4 +174,5 @@ class PolicyDecider:
             recovery=recovery,
             recovery_yaw_deg=recovery_yaw,
             recovery_tries=tries,
+            steered=steering and recovery is not None,
         )

@@ -72,7 +72,8 @@ class PolicyNode:
             f"policy_node (py): {cfg.policy_file} (input {m.input_width}x{m.input_height}, state "
             f"{m.state_frame}, output {m.output_frame} {m.representation}, K = {m.num_ctrl_pts} over "
             f"{m.horizon_s:.2f} s, network entry {entry}), {cfg.num_threads} thread(s), refusal action "
-            f"{cfg.refusal.action}, recovery goal turns {list(cfg.recovery.goal_yaw_offsets_deg)} deg"
+            f"{cfg.refusal.action}, recovery goal turns {list(cfg.recovery.goal_yaw_offsets_deg)} deg, "
+            f"steering clearance {cfg.recovery.steer_clearance_m:g} m"
         )
         self._warm_up(policy)
         self.lock = threading.Lock()
@@ -283,10 +284,14 @@ class PolicyNode:
         if not d.accepted:
             rospy.logwarn_throttle(2.0, f"policy_node (py): plan refused: {d.safety.reason}")
         if d.recovery is not None:
-            self._count("recovered")
-            out.reason += f"; recovered with the goal turned {d.recovery_yaw_deg:g} deg"
+            what = "steered" if d.steered else "recovered"
+            self._count(what)
+            out.reason += f"; {what} with the goal turned {d.recovery_yaw_deg:g} deg"
         if bspline is not None:
-            out.action = "policy" if d.accepted else ("recovery" if d.recovery is not None else "stop")
+            if d.recovery is not None:
+                out.action = "steer" if d.steered else "recovery"
+            else:
+                out.action = "policy" if d.accepted else "stop"
             out.traj_id = bspline.traj_id
             self.bspline_pub.publish(bspline)
             self._send_to_tracker(bspline)
