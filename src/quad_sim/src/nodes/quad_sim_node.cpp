@@ -42,6 +42,9 @@ namespace {
 // ROS time of the first step: sim time starts at 1 s so that stamps are valid (non-zero) from the first
 // message.
 constexpr uint64_t kTimeBaseNs = 1000000000ULL;
+// Resend period of an episode's first odometry while it is unanswered in lockstep
+// (QuadSimNode::WaitForCommand).
+constexpr double kResendPeriodS = 0.5;
 
 geometry_msgs::Point ToPoint(const Eigen::Vector3d& v) {
   geometry_msgs::Point p;
@@ -222,13 +225,13 @@ class QuadSimNode {
   }
 
   // ---- lockstep waits ----
-  // Waits (wall clock, lockstep.timeout_s) until `done` holds, a reset is requested or the node shuts down.
+  // Waits (wall clock, at most timeout_s) until `done` holds, a reset is requested or the node shuts down.
   template <typename Pred>
-  bool WaitFor(Pred done) {
+  bool WaitFor(Pred done, double timeout_s) {
     std::unique_lock<std::mutex> lock(mu_);
     const std::chrono::steady_clock::time_point deadline =
         std::chrono::steady_clock::now() + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
-                                               std::chrono::duration<double>(config_.lockstep.timeout_s));
+                                               std::chrono::duration<double>(timeout_s));
     while (!done() && !reset_job_ && ros::ok()) {
       // Wake at least every 100 ms to notice a shutdown.
       const std::chrono::steady_clock::time_point slice =
@@ -240,20 +243,52 @@ class QuadSimNode {
   }
 
   void WaitForCommand(const ros::Time& stamp) {
-    if (WaitFor([&] { return last_answer_stamp_ == stamp; })) return;
+    const auto answered = [&] { return last_answer_stamp_ == stamp; };
+    const double timeout_s = config_.lockstep.timeout_s;
+    bool ok;
+    if (AnsweredThisEpisode()) {
+      ok = WaitFor(answered, timeout_s);
+    } else {
+      // Start of a run or of an episode whose command source was (re)started: WaitForLockstepPeers counts
+      // odometry subscribers, not which node they are, so the command source's own subscription may still be
+      // connecting when the episode's first odometry goes out, and ROS drops a message published before a
+      // subscriber connects. Until the episode's first command arrives, the unanswered odometry is sent
+      // again every kResendPeriodS (same message, same stamp) within the timeout.
+      ok = false;
+      for (double waited = 0.0; waited < timeout_s && !ok; waited += kResendPeriodS) {
+        if (waited > 0.0) {
+          odom_pub_.publish(last_odom_);
+          ++odometry_resent_;
+          ROS_INFO_THROTTLE(
+              5.0,
+              "quad_sim lockstep: odometry %.3f, the episode's first, not answered yet: sent again "
+              "(%lu resent so far)",
+              stamp.toSec(), static_cast<unsigned long>(odometry_resent_));
+        }
+        ok = WaitFor(answered, std::min(kResendPeriodS, timeout_s - waited));
+      }
+    }
+    if (ok) return;
     ++command_timeouts_;
     ROS_WARN("quad_sim lockstep: no command stamped %.3f within %.2f s (command timeouts so far: %lu)",
-             stamp.toSec(), config_.lockstep.timeout_s, static_cast<unsigned long>(command_timeouts_));
+             stamp.toSec(), timeout_s, static_cast<unsigned long>(command_timeouts_));
+  }
+
+  bool AnsweredThisEpisode() {
+    std::lock_guard<std::mutex> lock(mu_);
+    return !last_answer_stamp_.isZero();  // cleared by every reset
   }
 
   void WaitForAcks(const ros::Time& stamp) {
-    const bool ok = WaitFor([&] {
-      for (const std::string& c : config_.lockstep.depth_consumers) {
-        auto it = acked_.find(c);
-        if (it == acked_.end() || it->second < stamp) return false;
-      }
-      return true;
-    });
+    const bool ok = WaitFor(
+        [&] {
+          for (const std::string& c : config_.lockstep.depth_consumers) {
+            auto it = acked_.find(c);
+            if (it == acked_.end() || it->second < stamp) return false;
+          }
+          return true;
+        },
+        config_.lockstep.timeout_s);
     if (ok) return;
     ++ack_timeouts_;
     std::string missing;
@@ -345,6 +380,7 @@ class QuadSimNode {
     o.twist.twist.angular.y = w_world.y();
     o.twist.twist.angular.z = w_world.z();
     odom_pub_.publish(o);
+    last_odom_ = o;
     ++odometry_count_;
 
     geometry_msgs::TransformStamped tf;
@@ -699,6 +735,8 @@ class QuadSimNode {
   uint64_t command_timeouts_ = 0;
   uint64_t ack_timeouts_ = 0;
   uint64_t odometry_count_ = 0;
+  uint64_t odometry_resent_ = 0;  // resends of episodes' first odometry (WaitForCommand)
+  nav_msgs::Odometry last_odom_;  // the last odometry published
   uint64_t depth_frame_count_ = 0;
   bool collision_logged_ = false;
   std::tuple<uint32_t, bool, int, bool, uint64_t> last_status_key_{0, false, -1, false, 0};
