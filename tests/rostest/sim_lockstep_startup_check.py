@@ -38,7 +38,8 @@ class LateSubscriberTest(unittest.TestCase):
         ack_pub = rospy.Publisher("sim/frame_ack", FrameAck, queue_size=10, tcp_nodelay=True)
 
         def on_depth(msg: Image) -> None:
-            ack_pub.publish(FrameAck(consumer="test_consumer", frame_seq=msg.header.seq, stamp=msg.header.stamp))
+            ack = FrameAck(consumer="test_consumer", frame_seq=msg.header.seq, stamp=msg.header.stamp)
+            ack_pub.publish(ack)
 
         def on_clock(msg: Clock) -> None:
             if msg.clock.to_nsec() >= FIRST_STAMP_NS:
@@ -76,7 +77,7 @@ class LateSubscriberTest(unittest.TestCase):
         # (resends of the first stamp before our first answer got through may repeat it).
         later = [s for s in got if s != FIRST_STAMP_NS]
         self.assertEqual(later[0], FIRST_STAMP_NS + 5_000_000)
-        self.assertTrue(all(b - a == 5_000_000 for a, b in zip(later, later[1:])), later[:20])
+        self.assertTrue(all(b - a == 5_000_000 for a, b in zip(later, later[1:], strict=False)), later[:20])
 
 
 if __name__ == "__main__":
