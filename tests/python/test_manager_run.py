@@ -350,6 +350,13 @@ def test_redo_from_a_round_the_config_does_not_have_is_refused(tmp_path: Path) -
     assert not (run / "state.json").exists()
 
 
+def test_redo_from_without_a_run_to_redo_is_refused(tmp_path: Path) -> None:
+    cfg, run, _ = make_config(tmp_path)
+    rc, out = run_manager(cfg, "--redo-from", "1")
+    assert rc == 2 and f"--redo-from 1: {run} has no run state (state.json) to redo from" in out
+    assert not (run / "state.json").exists() and not list(run.glob("round_*"))
+
+
 def test_config_errors_exit_2_naming_the_key(tmp_path: Path) -> None:
     cfg, run, _ = make_config(tmp_path, rounds={"count": 1, "initial_polcy": "x"})
     rc, out = run_manager(cfg)

@@ -431,6 +431,11 @@ class PipelineRunner:
             if self.redo_from is not None:
                 self._discard_rounds(state, self.redo_from)
         else:
+            if self.redo_from is not None:
+                raise ManagerError(
+                    f"--redo-from {self.redo_from}: {self.layout.run_dir} has no run state "
+                    f"({self.layout.state.name}) to redo from; start the run without --redo-from"
+                )
             state = RunState(config_sha256=digest)
         if not self.layout.config.exists():
             self.layout.config.write_text(self.config_text)
