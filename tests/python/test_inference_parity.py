@@ -20,7 +20,7 @@ from quad_il.inference.config import load_policy_config
 from quad_il.inference.decider import DecisionInputs, PolicyDecider
 from quad_il.inference.fixture import DecisionFixture, write_fixture
 from quad_il.inference.policy import LoadedPolicy
-from quad_il.inference.random_policy import export_random_policy
+from quad_il.inference.random_policy import export_goal_line_policy, export_random_policy
 from quad_il.inference.safety import SafetyVerdict, check_trajectory, trajectory_in_view
 from quad_il.learning.config import ModelConfig
 from quad_il.learning.synthetic import make_synthetic_arrays
@@ -47,6 +47,44 @@ H, W = 60, 80
 # Fast-Planner's field of view at 80 x 60; optical frame looking along base_link +x, 0.1 m ahead.
 CAMERA_K = np.array([387.2 * W / 640, 387.2 * H / 480, (W - 1) / 2, (H - 1) / 2])
 T_BODY_CAMERA = np.array([[0, 0, 1, 0.1], [-1, 0, 0, 0], [0, -1, 0, 0], [0, 0, 0, 1]], dtype=np.float64)
+
+
+def _replay(
+    policy: Path, fixture_dir: Path, config: Path, out: Path, trajectories: Path | None = None
+) -> dict[str, np.ndarray]:
+    """policy_replay (the C++ decider) over a fixture; its .npy outputs by name."""
+    cmd = [str(REPLAY), "--policy", str(policy), "--fixture", str(fixture_dir), "--config", str(config)]
+    cmd += ["--out", str(out)] + (["--trajectories", str(trajectories)] if trajectories else [])
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    return {p.stem: np.load(p) for p in out.glob("*.npy")}
+
+
+def _decide_all(decider: PolicyDecider, fx: DecisionFixture) -> list:
+    return [
+        decider.decide(
+            DecisionInputs(
+                float(fx.stamp_s[i]),
+                fx.depth_m[i],
+                fx.camera(i),
+                fx.p_world_body[i],
+                fx.v_world[i],
+                fx.q_world_body[i],
+                fx.goal_world[i],
+            )
+        )
+        for i in range(len(fx))
+    ]
+
+
+def _sent_kinds(py: list) -> list[int]:
+    """policy_replay's sent_kind of each Python decision."""
+    return [
+        0
+        if d.to_send() is None
+        else ((4 if d.steered else 3) if d.recovery is not None else (1 if d.accepted else 2))
+        for d in py
+    ]
 
 
 def _recorded_inputs(directory: Path) -> DecisionFixture:
@@ -151,43 +189,11 @@ def run_both(request: pytest.FixtureRequest, recorded, tmp_path_factory):
         .replace("goal_yaw_offsets_deg: []", f"goal_yaw_offsets_deg: {RECOVERY_TURNS}")
         .replace("steer_clearance_m: 0.0", f"steer_clearance_m: {STEER_CLEARANCE_M}")
     )
-    out = work / "cpp"
-    proc = subprocess.run(
-        [
-            str(REPLAY),
-            "--policy",
-            str(policy_path),
-            "--fixture",
-            str(fixture_dir),
-            "--config",
-            str(config),
-            "--out",
-            str(out),
-            "--trajectories",
-            str(work / "trajectories.npy"),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert proc.returncode == 0, proc.stderr
-    cpp = {p.stem: np.load(p) for p in out.glob("*.npy")}
+    cpp = _replay(policy_path, fixture_dir, config, work / "cpp", work / "trajectories.npy")
     cfg = load_policy_config(config)
     assert cfg.recovery.goal_yaw_offsets_deg == RECOVERY_TURNS
     assert cfg.recovery.steer_clearance_m == STEER_CLEARANCE_M
-    decider = PolicyDecider(policy, cfg.safety, cfg.refusal, cfg.recovery)
-    py = []
-    for i in range(len(fx)):
-        inp = DecisionInputs(
-            float(fx.stamp_s[i]),
-            fx.depth_m[i],
-            fx.camera(i),
-            fx.p_world_body[i],
-            fx.v_world[i],
-            fx.q_world_body[i],
-            fx.goal_world[i],
-        )
-        py.append(decider.decide(inp))
+    py = _decide_all(PolicyDecider(policy, cfg.safety, cfg.refusal, cfg.recovery), fx)
     return request.param, policy, fx, cpp, py, trajs, cfg
 
 
@@ -229,13 +235,7 @@ def test_trajectory_layout_and_decisions_agree(run_both) -> None:
     np.testing.assert_allclose(cpp["knots"], py[0].proposed.knots(), rtol=0, atol=1e-12)
     assert cpp["knots"][3] == 0.0 and len(cpp["knots"]) == policy.meta.num_ctrl_pts + 4
     np.testing.assert_array_equal(cpp["verdict"], [int(d.safety.verdict) for d in py])
-    kinds = [
-        0
-        if d.to_send() is None
-        else ((4 if d.steered else 3) if d.recovery is not None else (1 if d.accepted else 2))
-        for d in py
-    ]
-    np.testing.assert_array_equal(cpp["sent_kind"], kinds)
+    np.testing.assert_array_equal(cpp["sent_kind"], _sent_kinds(py))
     # The recovery and the steering: as many turned goals asked, the same one taken, the same plan.
     np.testing.assert_array_equal(cpp["recovery_tries"], [d.recovery_tries for d in py])
     assert all(d.recovery_tries in (0, len(RECOVERY_TURNS)) or d.recovery for d in py)
@@ -278,3 +278,48 @@ def test_safety_layer_verdicts_agree_for_every_refusal_reason(run_both) -> None:
     assert set(py_in_view) == {0, 1}, py_in_view
     np.testing.assert_allclose(cpp["traj_value"], py_values, rtol=0, atol=1e-9)
     assert set(py_verdicts) == {int(v) for v in SafetyVerdict}, py_verdicts
+
+
+def test_recovery_and_steering_succeed_alike_with_a_goal_seeking_policy(tmp_path: Path) -> None:
+    """Random networks never give a turned plan that passes; a goal-seeking test double does.
+
+    The vehicle hovers at the origin facing +x, goal 10 m ahead; the double flies straight at the (turned)
+    goal at 1.5 m/s. Frames: nothing seen (accepted); a wall 1.2 m ahead (refused, recovered with the goal
+    turned 20 deg: 60 deg leaves the image, 10 deg still hits the wall); a narrow wall 2.2 m ahead (accepted
+    but within the steering clearance: steered by 20 deg); the same wall at 2.0 m (no turn keeps it)."""
+    policy_path = export_goal_line_policy(tmp_path / "goal_line.ts")
+    n = 4
+    depth = np.full((n, H, W), np.inf, np.float32)
+    depth[1][:, 35:45] = 1.2
+    depth[2][:, 35:45] = 2.2
+    depth[3][:, 35:45] = 2.0
+    fx = DecisionFixture(
+        depth_m=depth,
+        stamp_s=1.0 + 0.1 * np.arange(n),
+        p_world_body=np.tile([0.0, 0.0, 1.5], (n, 1)),
+        v_world=np.zeros((n, 3)),
+        q_world_body=np.tile([0.0, 0.0, 0.0, 1.0], (n, 1)),
+        goal_world=np.tile([10.0, 0.0, 1.5], (n, 1)),
+        camera_k=CAMERA_K,
+        T_body_camera=T_BODY_CAMERA,
+    )
+    write_fixture(tmp_path / "fx", fx)
+    config = tmp_path / "policy.yaml"
+    config.write_text(
+        CONFIG.read_text()
+        .replace("goal_yaw_offsets_deg: []", "goal_yaw_offsets_deg: [60.0, 10.0, 20.0, -20.0]")
+        .replace("steer_clearance_m: 0.0", "steer_clearance_m: 0.9")
+    )
+    cfg = load_policy_config(config)
+    cpp = _replay(policy_path, tmp_path / "fx", config, tmp_path / "cpp")
+    py = _decide_all(PolicyDecider(LoadedPolicy(policy_path), cfg.safety, cfg.refusal, cfg.recovery), fx)
+    # The scenes do what they were built for (Python), and C++ decides the same.
+    assert _sent_kinds(py) == [1, 3, 4, 1]
+    assert [d.recovery_tries for d in py] == [0, 3, 3, 4]
+    np.testing.assert_array_equal(cpp["sent_kind"], _sent_kinds(py))
+    np.testing.assert_array_equal(cpp["recovery_tries"], [d.recovery_tries for d in py])
+    np.testing.assert_array_equal(cpp["recovery_yaw_deg"], [np.nan, 20.0, 20.0, np.nan])
+    for i in (1, 2):
+        np.testing.assert_allclose(cpp["recovery_ctrl"][i], py[i].recovery.ctrl_world, rtol=0, atol=TOL)
+        heading = py[i].recovery.position(np.array([1.0]))[0] - fx.p_world_body[i]
+        assert np.degrees(np.arctan2(heading[1], heading[0])) == pytest.approx(20.0, abs=1e-3)

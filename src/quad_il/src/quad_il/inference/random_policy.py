@@ -1,4 +1,5 @@
-"""A policy exported from a randomly initialised model, for the inference benchmark and tests.
+"""A policy exported from a randomly initialised model, for the inference benchmark and tests; and a
+goal-seeking test double with the same file interface (`export_goal_line_policy`).
 
 Decision latency does not depend on the weights, so `make bench-inference` times a seeded random policy of the
 default model configuration (config/train.yaml) rather than a trained one (docs/inference.md says so).
@@ -74,6 +75,55 @@ def export_random_policy(
         export_torchscript(policy, out, meta, check)
     finally:
         learning_export.PRESERVED = preserved
+    return out
+
+
+class GoalLinePolicy(Policy):
+    """Test double in the exported-policy format whose "network" ignores the depth image: a straight line from
+    the vehicle toward the goal at `speed_mps` (control points (i - 1) dt speed along the goal direction),
+    encoded like a trained output. Both nodes decode and judge it as they would a trained policy's, so tests
+    can build scenes where turned goals are refused or accepted (recovery, steering) in C++ and Python."""
+
+    def __init__(self, model_cfg: ModelConfig, num_ctrl_pts: int, horizon_s: float, speed_mps: float) -> None:
+        super().__init__(model_cfg, num_ctrl_pts, horizon_s)
+        self.speed_mps = float(speed_mps)
+
+    @torch.jit.export
+    def forward_prepared(
+        self, depth_x: Tensor, p_world_body: Tensor, v_world: Tensor, q_world_body: Tensor, goal_world: Tensor
+    ) -> Tensor:
+        k = self.num_ctrl_pts
+        dt = self.horizon_s / (k - 3)
+        d = goal_world - p_world_body
+        direction = d / torch.linalg.norm(d, dim=1, keepdim=True).clamp_min(1e-9)
+        tau = (torch.arange(k, dtype=p_world_body.dtype, device=p_world_body.device) - 1.0) * dt
+        ctrl = p_world_body.unsqueeze(1) + self.speed_mps * tau.view(1, k, 1) * direction.unsqueeze(1)
+        return self.codec.encode(ctrl, p_world_body, q_world_body)
+
+
+def export_goal_line_policy(
+    path: str | Path, num_ctrl_pts: int = 10, horizon_s: float = 2.0, speed_mps: float = 1.5
+) -> Path:
+    """GoalLinePolicy (world-frame B-spline output, 32 x 32 input) exported as training does."""
+    model_cfg = ModelConfig(input_height=32, input_width=32)
+    torch.manual_seed(0)
+    policy = GoalLinePolicy(model_cfg, num_ctrl_pts, horizon_s, speed_mps).eval()
+    g = torch.Generator().manual_seed(1)
+    check = (
+        torch.rand(2, 64, 64, generator=g) * 12.0,
+        torch.rand(2, 3, generator=g) * 10.0,
+        torch.rand(2, 3, generator=g),
+        torch.nn.functional.normalize(torch.rand(2, 4, generator=g) + 0.1, dim=1),
+        torch.rand(2, 3, generator=g) * 20.0 + 11.0,
+    )
+    meta = policy_metadata(
+        policy,
+        model_cfg.model_dump(mode="json"),
+        {"run": {"name": "goal_line_test_double", "speed_mps": speed_mps, "trained": False}},
+    )
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    export_torchscript(policy, out, meta, check)
     return out
 
 
