@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from quad_il.inference.config import load_policy_config
-from quad_il.inference.decider import DecisionInputs, PolicyDecider
+from quad_il.inference.decider import PolicyDecider, fixture_inputs
 from quad_il.inference.fixture import DecisionFixture, write_fixture
 from quad_il.inference.policy import LoadedPolicy
 from quad_il.inference.random_policy import export_goal_line_policy, export_random_policy
@@ -61,20 +61,7 @@ def _replay(
 
 
 def _decide_all(decider: PolicyDecider, fx: DecisionFixture) -> list:
-    return [
-        decider.decide(
-            DecisionInputs(
-                float(fx.stamp_s[i]),
-                fx.depth_m[i],
-                fx.camera(i),
-                fx.p_world_body[i],
-                fx.v_world[i],
-                fx.q_world_body[i],
-                fx.goal_world[i],
-            )
-        )
-        for i in range(len(fx))
-    ]
+    return [decider.decide(fixture_inputs(fx, i)) for i in range(len(fx))]
 
 
 def _sent_kinds(py: list) -> list[int]:

@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 from quad_il.inference.config import load_policy_config
-from quad_il.inference.decider import DecisionInputs, PolicyDecider
+from quad_il.inference.decider import PolicyDecider, fixture_inputs
 from quad_il.inference.fixture import read_fixture
 from quad_il.inference.messages import bspline_message
 from quad_il.inference.policy import LoadedPolicy, configure_threads
@@ -47,16 +47,7 @@ def main(argv: list[str] | None = None) -> int:
     traj_id = 0
     for r in range(-1, args.repeat):  # r = -1: warm-up pass, not recorded
         for i in range(len(fx)):
-            inp = DecisionInputs(
-                float(fx.stamp_s[i]),
-                fx.depth_m[i],
-                fx.camera(i),
-                fx.p_world_body[i],
-                fx.v_world[i],
-                fx.q_world_body[i],
-                fx.goal_world[i],
-            )
-            d = decider.decide(inp)
+            d = decider.decide(fixture_inputs(fx, i))
             t0 = time.perf_counter()
             traj_id += 1
             msg = bspline_message(d.proposed, traj_id)

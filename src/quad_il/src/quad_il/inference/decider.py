@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from quad_il.inference.config import RecoveryConfig, RefusalConfig, SafetyConfig, check_steering
+from quad_il.inference.fixture import DecisionFixture
 from quad_il.inference.policy import LoadedPolicy
 from quad_il.inference.preprocessing import PolicyPreprocessing, as_row
 from quad_il.inference.safety import (
@@ -39,6 +40,19 @@ class DecisionInputs:
     v_world: FloatArray
     q_world_body: FloatArray  # x, y, z, w
     goal_world: FloatArray
+
+
+def fixture_inputs(fx: DecisionFixture, i: int) -> DecisionInputs:
+    """Frame i of a recorded fixture as decision inputs (the benchmark and the parity test)."""
+    return DecisionInputs(
+        float(fx.stamp_s[i]),
+        fx.depth_m[i],
+        fx.camera(i),
+        fx.p_world_body[i],
+        fx.v_world[i],
+        fx.q_world_body[i],
+        fx.goal_world[i],
+    )
 
 
 @dataclass

@@ -35,6 +35,19 @@ class PolicyWithForwardNet(Policy):
         return self.net(depth_x, state_x)
 
 
+def _check_inputs(model_cfg: ModelConfig, seed: int, goal_offset_m: float = 0.0) -> tuple[Tensor, ...]:
+    """Seeded raw inputs (batch of 2, depth at twice the input size) for the export's eager-vs-file check."""
+    g = torch.Generator().manual_seed(seed)
+    b = 2
+    return (
+        torch.rand(b, 2 * model_cfg.input_height, 2 * model_cfg.input_width, generator=g) * 12.0,
+        torch.rand(b, 3, generator=g) * 10.0,
+        torch.rand(b, 3, generator=g),
+        torch.nn.functional.normalize(torch.rand(b, 4, generator=g) + 0.1, dim=1),
+        torch.rand(b, 3, generator=g) * 20.0 + goal_offset_m,
+    )
+
+
 def export_random_policy(
     path: str | Path,
     model_cfg: ModelConfig,
@@ -51,15 +64,7 @@ def export_random_policy(
         else build_policy(model_cfg, num_ctrl_pts, horizon_s)
     )
     policy.eval()
-    g = torch.Generator().manual_seed(seed + 1)
-    b = 2
-    check = (
-        torch.rand(b, 2 * model_cfg.input_height, 2 * model_cfg.input_width, generator=g) * 12.0,
-        torch.rand(b, 3, generator=g) * 10.0,
-        torch.rand(b, 3, generator=g),
-        torch.nn.functional.normalize(torch.rand(b, 4, generator=g) + 0.1, dim=1),
-        torch.rand(b, 3, generator=g) * 20.0,
-    )
+    check = _check_inputs(model_cfg, seed + 1)
     meta = policy_metadata(
         policy,
         model_cfg.model_dump(mode="json"),
@@ -108,14 +113,7 @@ def export_goal_line_policy(
     model_cfg = ModelConfig(input_height=32, input_width=32)
     torch.manual_seed(0)
     policy = GoalLinePolicy(model_cfg, num_ctrl_pts, horizon_s, speed_mps).eval()
-    g = torch.Generator().manual_seed(1)
-    check = (
-        torch.rand(2, 64, 64, generator=g) * 12.0,
-        torch.rand(2, 3, generator=g) * 10.0,
-        torch.rand(2, 3, generator=g),
-        torch.nn.functional.normalize(torch.rand(2, 4, generator=g) + 0.1, dim=1),
-        torch.rand(2, 3, generator=g) * 20.0 + 11.0,
-    )
+    check = _check_inputs(model_cfg, 1, goal_offset_m=11.0)  # goals never at the vehicle
     meta = policy_metadata(
         policy,
         model_cfg.model_dump(mode="json"),
