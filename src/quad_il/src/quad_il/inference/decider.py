@@ -115,7 +115,7 @@ class PolicyDecider:
             else RecoveryConfig(goal_yaw_offsets_deg=[], steer_clearance_m=0.0)
         )
         check_steering(self.recovery, safety)
-        self.steer = safety.model_copy(update={"vehicle_radius_m": self.recovery.steer_clearance_m})
+        self.steer_safety = safety.model_copy(update={"vehicle_radius_m": self.recovery.steer_clearance_m})
         self.pre = PolicyPreprocessing(policy.meta)
         self.counts = VerdictCounts()
 
@@ -146,7 +146,9 @@ class PolicyDecider:
         steering = (
             result.accepted
             and self.recovery.steer_clearance_m > 0.0
-            and not check_trajectory(proposed, inp.p_world_body, inp.depth_m, inp.camera, self.steer).accepted
+            and not check_trajectory(
+                proposed, inp.p_world_body, inp.depth_m, inp.camera, self.steer_safety
+            ).accepted
         )
         if not result.accepted or steering:
             for yaw in self.recovery.goal_yaw_offsets_deg:
@@ -159,7 +161,7 @@ class PolicyDecider:
                     and (
                         not steering
                         or check_trajectory(
-                            traj, inp.p_world_body, inp.depth_m, inp.camera, self.steer
+                            traj, inp.p_world_body, inp.depth_m, inp.camera, self.steer_safety
                         ).accepted
                     )
                     and trajectory_in_view(traj, inp.camera, self.safety)
