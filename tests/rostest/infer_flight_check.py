@@ -139,7 +139,16 @@ class InferFlight(unittest.TestCase):
                 f"tracker rejections {result.tracker_rejections}"
             )
             self.assertIn(result.outcome, ("goal_reached", "collision", "timeout"), result.reason)
-            time.sleep(0.5)  # wall: the last messages in flight arrive
+            # Wall time for the last messages in flight: each decision's B-spline is published before its
+            # decision message, but on another topic, so under load it can arrive after it.
+            deadline = time.monotonic() + 10.0
+            while time.monotonic() < deadline:
+                with rec.lock:
+                    sent = {d.traj_id for d in rec.decisions if d.status == "decided"}
+                    if sent <= rec.bsplines.keys():
+                        break
+                time.sleep(0.1)
+            time.sleep(0.5)
             self.assertTrue(proc.is_alive(), "policy_node died")
             with rec.lock:
                 decisions = list(rec.decisions)
