@@ -48,6 +48,17 @@ def _check_inputs(model_cfg: ModelConfig, seed: int, goal_offset_m: float = 0.0)
     )
 
 
+def _export(
+    policy: Policy, model_cfg: ModelConfig, path: str | Path, run: dict, check: tuple[Tensor, ...]
+) -> Path:
+    """Export as training does, with `run` as the metadata's run section."""
+    meta = policy_metadata(policy, model_cfg.model_dump(mode="json"), {"run": run})
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    export_torchscript(policy, out, meta, check)
+    return out
+
+
 def export_random_policy(
     path: str | Path,
     model_cfg: ModelConfig,
@@ -65,22 +76,16 @@ def export_random_policy(
     )
     policy.eval()
     check = _check_inputs(model_cfg, seed + 1)
-    meta = policy_metadata(
-        policy,
-        model_cfg.model_dump(mode="json"),
-        {"run": {"name": "random_init", "seed": seed, "trained": False}},
-    )
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
     preserved = learning_export.PRESERVED
     try:
         if forward_net:
             # The export freezes the module keeping only the methods in PRESERVED: add the network entry.
             learning_export.PRESERVED = [*preserved, "forward_net"]
-        export_torchscript(policy, out, meta, check)
+        return _export(
+            policy, model_cfg, path, {"name": "random_init", "seed": seed, "trained": False}, check
+        )
     finally:
         learning_export.PRESERVED = preserved
-    return out
 
 
 class GoalLinePolicy(Policy):
@@ -114,15 +119,8 @@ def export_goal_line_policy(
     torch.manual_seed(0)
     policy = GoalLinePolicy(model_cfg, num_ctrl_pts, horizon_s, speed_mps).eval()
     check = _check_inputs(model_cfg, 1, goal_offset_m=11.0)  # goals never at the vehicle
-    meta = policy_metadata(
-        policy,
-        model_cfg.model_dump(mode="json"),
-        {"run": {"name": "goal_line_test_double", "speed_mps": speed_mps, "trained": False}},
-    )
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    export_torchscript(policy, out, meta, check)
-    return out
+    run = {"name": "goal_line_test_double", "speed_mps": speed_mps, "trained": False}
+    return _export(policy, model_cfg, path, run, check)
 
 
 def main(argv: list[str] | None = None) -> int:
