@@ -173,14 +173,18 @@ def test_the_report_has_the_table_plots_and_bench_lines(
     assert len(bench_lines({})) == 0
 
 
-def test_the_evaluation_simulator_config_is_lockstepped_with_the_controller(tmp_path: Path) -> None:
+def test_the_evaluation_simulator_config_is_lockstepped_with_the_controller_and_the_runner(
+    tmp_path: Path,
+) -> None:
     cfg = eval_sim_config(ROOT / "config" / "sim.yaml", "cpp", 10.0)
-    assert cfg["time"]["mode"] == "lockstep" and cfg["lockstep"]["depth_consumers"] == ["policy"]
+    assert cfg["time"]["mode"] == "lockstep"
+    assert cfg["lockstep"]["depth_consumers"] == ["policy", "eval_runner"]
     assert cfg["lockstep"]["wait_for_command"] is True
     assert cfg["world"]["generator"]["density_boxes_per_100m2"] == 10.0
     assert Path(cfg["vehicle_file"]).is_absolute() and Path(cfg["vehicle_file"]).is_file()
     assert eval_sim_config(ROOT / "config" / "sim.yaml", "expert", None)["lockstep"]["depth_consumers"] == [
-        "fast_planner"
+        "fast_planner",
+        "eval_runner",
     ]
     # Every key the simulator reads is still there (the file is the base config with values changed).
     base = yaml.safe_load((ROOT / "config" / "sim.yaml").read_text())

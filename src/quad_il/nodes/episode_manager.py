@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import bisect
 import math
-import queue
 import sys
 import threading
 import time
@@ -30,9 +29,7 @@ import rosnode
 import rospy
 import yaml
 from geometry_msgs.msg import Point, Pose, PoseStamped, Quaternion
-from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import String
 
 from quad_il.collection.episodes import (
@@ -42,18 +39,14 @@ from quad_il.collection.episodes import (
     manager_config,
     plan_episode,
 )
-from quad_msgs.msg import EpisodeStatus, FrameAck, PlanTiming, SO3Command
-from quad_msgs.srv import Goto, ResetEpisode
+from quad_il.lockstep import FrameGate, Interrupted, OdometryHistory, TrackerGoto, wait_until
+from quad_msgs.msg import EpisodeStatus, FrameAck, PlanTiming
+from quad_msgs.srv import ResetEpisode
 
 GROUND_Z_M = 0.125  # the vehicle's collision box half height: the start rests on the ground
 TAKEOFF_TOLERANCE_M = 0.15
 TAKEOFF_MAX_SPEED_MPS = 0.3
 WALL_WAIT_S = 30.0  # wall-time limit of any wait on another node
-STARTUP_ACK_S = 0.2  # sim seconds of the simulator's initial episode acknowledged blindly at start-up
-
-
-class Interrupted(Exception):
-    pass
 
 
 class EpisodeManager:
@@ -70,36 +63,23 @@ class EpisodeManager:
         self.consumer = str(rospy.get_param("~frame_ack_consumer", "episode_manager"))
         self.planner_consumer = str(rospy.get_param("~planner_consumer", "fast_planner"))
         self.tracker_node = str(rospy.get_param("~tracker_node", "/kr_tracker"))
-        self.odom_period_s = float(rospy.get_param("~odom_period_s", 0.005))
+        odom_period_s = float(rospy.get_param("~odom_period_s", 0.005))
         self._lock = threading.Lock()
         self._cv = threading.Condition(self._lock)
         self._status: EpisodeStatus | None = None
-        self._odom_t: list[float] = []
-        self._odom: list[tuple[tuple[float, float, float], float]] = []
+        self._first_status: rospy.Time | None = None
         self._planner_ack = 0.0
         self._planner_status: list[str] = []
         self._successes: list[float] = []  # stamps of successful plans (= records)
-        self._frames: queue.Queue[tuple[float, rospy.Time]] = queue.Queue()
-        self._held: rospy.Time | None = None  # a frame not acknowledged yet (lockstep)
-        self._seen_frame = False
-        self._startup_ack_s = 0.0
-        self._startup_stamp: rospy.Time | None = None
-        self._last_ack: rospy.Time | None = None
-        self._sim_first_s: float | None = None
-        self._last_frame_s = 0.0
-        self._cmd_t = 0.0  # stamp of the tracker's newest command
-        rospy.Subscriber("/so3_cmd", SO3Command, self._on_cmd, queue_size=100, tcp_nodelay=True)
+        self.odom = OdometryHistory(odom_period_s, wall_wait_s=WALL_WAIT_S)
+        self.goto = TrackerGoto(self.lockstep, odom_period_s, WALL_WAIT_S)
         rospy.Subscriber("/sim/status", EpisodeStatus, self._on_status, queue_size=10)
-        rospy.Subscriber("/odom", Odometry, self._on_odom, queue_size=400, tcp_nodelay=True)
         rospy.Subscriber("/planner/timing", PlanTiming, self._on_timing, queue_size=100)
         rospy.Subscriber("/planner/status", String, self._on_planner_status, queue_size=100)
         rospy.Subscriber("/sim/frame_ack", FrameAck, self._on_ack, queue_size=100, tcp_nodelay=True)
         self.goal_pub = rospy.Publisher("/planner/goal", PoseStamped, queue_size=1, latch=True)
-        self.ack_pub = rospy.Publisher("/sim/frame_ack", FrameAck, queue_size=10, tcp_nodelay=True)
         self.clock_pub = rospy.Publisher("/clock", Clock, queue_size=1) if self.lockstep else None
-        rospy.Subscriber(
-            "/camera/depth/camera_info", CameraInfo, self._on_frame, queue_size=100, tcp_nodelay=True
-        )
+        self.frames = FrameGate(self.consumer, self.lockstep, self._first_status_stamp, WALL_WAIT_S)
         rospy.loginfo("episode_manager: waiting for /sim/reset and /tracker/goto")
         rospy.wait_for_service("/sim/reset")
         rospy.wait_for_service("/tracker/goto")
@@ -110,26 +90,13 @@ class EpisodeManager:
     def _on_status(self, msg: EpisodeStatus) -> None:
         with self._cv:
             self._status = msg
+            if self._first_status is None:
+                self._first_status = msg.header.stamp
             self._cv.notify_all()
 
-    def _on_cmd(self, msg: SO3Command) -> None:
-        with self._cv:
-            self._cmd_t = msg.header.stamp.to_sec()
-            self._cv.notify_all()
-
-    def _on_odom(self, msg: Odometry) -> None:
-        p, v = msg.pose.pose.position, msg.twist.twist.linear
-        with self._cv:
-            t = msg.header.stamp.to_sec()
-            if self._odom_t and t < self._odom_t[-1]:  # a new episode never goes back in time; be safe
-                self._odom_t.clear()
-                self._odom.clear()
-            self._odom_t.append(t)
-            self._odom.append(((p.x, p.y, p.z), math.hypot(v.x, v.y, v.z)))
-            if len(self._odom_t) > 2000:
-                del self._odom_t[:1000]
-                del self._odom[:1000]
-            self._cv.notify_all()
+    def _first_status_stamp(self) -> rospy.Time | None:
+        with self._lock:
+            return self._first_status
 
     def _on_timing(self, msg: PlanTiming) -> None:
         if msg.status.startswith("success"):
@@ -147,88 +114,9 @@ class EpisodeManager:
                 self._planner_ack = max(self._planner_ack, msg.stamp.to_sec())
                 self._cv.notify_all()
 
-    def _on_frame(self, msg: CameraInfo) -> None:
-        self._frames.put((msg.header.stamp.to_sec(), msg.header.stamp))
-
     # ---- helpers (main thread) ----
     def _wait(self, predicate, what: str, timeout_wall_s: float = WALL_WAIT_S) -> None:
-        deadline = time.monotonic() + timeout_wall_s
-        with self._cv:
-            while not predicate():
-                if rospy.is_shutdown():
-                    raise Interrupted(what)
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    raise TimeoutError(f"no {what} within {timeout_wall_s:.0f} s (wall)")
-                self._cv.wait(min(left, 0.1))
-
-    def _next_frame(self, after_s: float) -> tuple[float, rospy.Time]:
-        """The next depth frame stamped at or after after_s (older ones are acknowledged and skipped)."""
-        deadline = time.monotonic() + WALL_WAIT_S
-        while True:
-            if rospy.is_shutdown():
-                raise Interrupted("waiting for a depth frame")
-            try:
-                t, stamp = self._frames.get(timeout=0.1)
-            except queue.Empty:
-                if time.monotonic() > deadline:
-                    raise TimeoutError(f"no depth frame within {WALL_WAIT_S:.0f} s (wall)") from None
-                if self.lockstep and not self._seen_frame:
-                    self._startup_ack()
-                elif self.lockstep and self._last_ack is not None:
-                    # Acknowledgements are cumulative: repeating the last one is harmless and recovers one
-                    # lost while the connection to the simulator was being set up.
-                    self.ack_pub.publish(FrameAck(consumer=self.consumer, frame_seq=0, stamp=self._last_ack))
-                continue
-            self._seen_frame = True
-            self._last_frame_s = t
-            if self._sim_first_s is None:
-                self._sim_first_s = t
-            if t < after_s or t <= self._startup_ack_s:
-                self._ack(stamp)
-                continue
-            if not self.lockstep:  # not holding the simulator: only the newest frame matters
-                while not self._frames.empty():
-                    t, stamp = self._frames.get_nowait()
-            self._held = stamp
-            return t, stamp
-
-    def _startup_ack(self) -> None:
-        """At start-up the simulator may have published a frame before this node subscribed (it waits for one
-        depth consumer to connect, not all): it then waits for an acknowledgement of a frame this node never
-        received. Acknowledgements are cumulative, so acknowledge the first STARTUP_ACK_S of the simulator's
-        initial episode (no decision is taken in it); the first frame held comes after that."""
-        with self._lock:
-            s = self._status
-        if s is None:
-            return
-        if self._startup_stamp is None:  # from the first status only (later ones have later stamps)
-            self._startup_stamp = s.header.stamp + rospy.Duration(STARTUP_ACK_S)
-            self._startup_ack_s = self._startup_stamp.to_sec()
-        stamp = self._startup_stamp
-        self.ack_pub.publish(FrameAck(consumer=self.consumer, frame_seq=0, stamp=stamp))
-
-    def _ack(self, stamp: rospy.Time | None = None) -> None:
-        stamp = stamp or self._held
-        if stamp is None:
-            return
-        if self.lockstep:
-            self.ack_pub.publish(FrameAck(consumer=self.consumer, frame_seq=0, stamp=stamp))
-            if self._last_ack is None or stamp > self._last_ack:
-                self._last_ack = stamp
-        if stamp == self._held:
-            self._held = None
-
-    def _odom_at(self, t: float) -> tuple[tuple[float, float, float], float]:
-        """The newest odometry stamped at or before t (waiting until the one within an odometry period)."""
-        eps = 1e-6
-        self._wait(
-            lambda: self._odom_t and self._odom_t[-1] > t - self.odom_period_s + eps,
-            f"odometry at t={t:.3f}",
-        )
-        with self._lock:
-            i = bisect.bisect_right(self._odom_t, t + eps) - 1
-            return self._odom[max(i, 0)]
+        wait_until(self._cv, predicate, what, timeout_wall_s)
 
     def _kill_tracker(self) -> str:
         """Ask the tracker to shut down (roslaunch respawns it); returns the old node's URI."""
@@ -269,27 +157,13 @@ class EpisodeManager:
             if odom_in and (cmd_out or not self.lockstep) and (clock_in or not self.lockstep):
                 break
         rospy.wait_for_service("/tracker/goto", timeout=WALL_WAIT_S)
-        if self.lockstep and self._held is not None:
+        if self.lockstep and self.frames.held is not None:
             # The held simulator publishes no /clock: give the new tracker the current sim time (the held
             # frame's stamp, the last /clock the simulator published, so a repeat for every other node) before
             # its first odometry. kr_tracker stamps odometry receipt with its clock; at 0 its watchdog would
             # declare the odometry stale and publish a safe command competing with the real one.
-            self.clock_pub.publish(Clock(clock=self._held))
+            self.clock_pub.publish(Clock(clock=self.frames.held))
             time.sleep(0.05)
-
-    def _goto(self, position: tuple[float, float, float], yaw: float, at_s: float | None = None) -> str:
-        if at_s is not None and self.lockstep:
-            # The tracker applies a goto from the next odometry it processes. Wait until it has answered the
-            # odometry of this frame's control period, so that is always the following one (otherwise which
-            # step the take-off starts at would depend on message timing).
-            eps = 1e-6
-            self._wait(
-                lambda: self._cmd_t > at_s - self.odom_period_s + eps,
-                f"tracker command of the control period at t={at_s:.3f}",
-            )
-        goto = rospy.ServiceProxy("/tracker/goto", Goto)
-        r = goto(position=Point(*position), yaw=yaw, max_vel_mps=0.0, max_acc_mps2=0.0)
-        return "" if r.success else r.message
 
     def _records_since(self, t0: float) -> int:
         with self._lock:
@@ -303,16 +177,13 @@ class EpisodeManager:
             return EpisodeOutcome(index, spec.seed, kind, reason, max(0.0, t_now - t_start), records)
 
         # Hold the simulator (lockstep) at a frame of the previous episode while the tracker restarts.
-        if self._held is None:
+        if self.frames.held is None:
             # The first hold: a fixed time into the simulator's initial episode, whether or not the start-up
             # acknowledgement was needed, so every run's episodes have the same stamps (floating-point time
             # arithmetic then gives bit-identical flights).
-            self._wait(lambda: self._status is not None, "simulator status")
-            if self._startup_stamp is None:
-                # Only from the first status: a later (periodic) one has a later stamp, moving the hold.
-                self._startup_stamp = self._status.header.stamp + rospy.Duration(STARTUP_ACK_S)
-                self._startup_ack_s = self._startup_stamp.to_sec()
-            self._next_frame(0.0)
+            self._wait(lambda: self._first_status is not None, "simulator status")
+            self.frames.fix_startup()
+            self.frames.next_frame(0.0)
         if self.cfg.restart_tracker and self.lockstep:
             self._wait_tracker(self._kill_tracker())
         sx, sy, sz = spec.start_world
@@ -327,7 +198,7 @@ class EpisodeManager:
             # Not holding the simulator: the new tracker must only see the new episode's odometry.
             old_tracker = self._kill_tracker()
         resp = self.reset_srv(seed=spec.seed, world_file="", start=start, goal=Point(*spec.goal_world))
-        self._held = None  # the reset released the held frame
+        self.frames.held = None  # the reset released the held frame
         if not resp.success:
             return outcome("reset_failed", resp.message, 0.0, 0.0, 0)
         episode_id = resp.episode_id
@@ -339,19 +210,19 @@ class EpisodeManager:
         if self.cfg.restart_tracker and not self.lockstep:
             self._wait_tracker(old_tracker)
         # Take-off at the first frame of the episode.
-        t, _ = self._next_frame(t0)
-        why = self._goto(spec.start_world, spec.start_yaw_rad, at_s=t)
-        self._ack()
+        t, _ = self.frames.next_frame(t0)
+        why = self.goto(spec.start_world, spec.start_yaw_rad, at_s=t)
+        self.frames.ack()
         if why:
             return outcome("reset_failed", f"take-off refused: {why}", t0, t, 0)
         while True:
-            t, _ = self._next_frame(t)
-            p, speed = self._odom_at(t)
+            t, _ = self.frames.next_frame(t)
+            p, speed = self.odom.at(t)
             if math.dist(p, spec.start_world) < TAKEOFF_TOLERANCE_M and speed < TAKEOFF_MAX_SPEED_MPS:
                 break
             if t - t0 > self.cfg.takeoff_timeout_s:
                 return outcome("timeout", "take-off did not reach its altitude", t0, t, 0)
-            self._ack()
+            self.frames.ack()
         # The goal, at this frame once the planner has processed it; the frame is acknowledged once the
         # planner has taken (or rejected) the goal.
         self._wait(lambda: self._planner_ack >= t - 1e-9, f"planner acknowledgement of frame {t:.3f}")
@@ -374,12 +245,12 @@ class EpisodeManager:
 
         self._wait(answered, "answer of the planner to the goal")
         t_goal = t
-        self._ack()
+        self.frames.ack()
         if answer[0].startswith("goal rejected"):
             return outcome("goal_rejected", answer[0], t_goal, t, 0)
         stop = StopCondition(self.cfg)
         while True:
-            t, _ = self._next_frame(t)
+            t, _ = self.frames.next_frame(t)
             records = self._records_since(t_goal)
             with self._lock:
                 s = self._status
@@ -397,7 +268,7 @@ class EpisodeManager:
             done, why = stop.done(0, samples_before + records)
             if done:
                 return outcome("stopped", why, t_goal, t, records)
-            self._ack()
+            self.frames.ack()
 
     def run(self) -> int:
         stop = StopCondition(self.cfg)
@@ -445,7 +316,8 @@ class EpisodeManager:
 
     def _write_summary(self, finished: int, samples: int, counts: dict[str, int], wall_s: float) -> None:
         """<output_dir>/collect_summary.yaml: what the run did and how fast (sim seconds per wall second)."""
-        sim_s = (self._last_frame_s - self._sim_first_s) if self._sim_first_s is not None else 0.0
+        first = self.frames.first_frame_s
+        sim_s = (self.frames.last_frame_s - first) if first is not None else 0.0
         summary = {
             "episodes": finished,
             "samples": samples,

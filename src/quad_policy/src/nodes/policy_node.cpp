@@ -5,7 +5,9 @@
 // Per depth frame: pair it with the latest odometry not newer than the frame, decide (preprocessing, network,
 // world-frame B-spline started at the frame's stamp, safety layer), publish the trajectory to fly on
 // planner/bspline and send it to tracker/track_bspline (a refused plan sends the stopping trajectory or
-// switches the tracker to hover), publish policy/decision, then acknowledge the frame (lockstep).
+// switches the tracker to hover), publish policy/decision, wait until the tracker has taken the trajectory
+// (bounded by ~tracker_accept_timeout_s: in lockstep it then takes effect at the same step in every run),
+// then acknowledge the frame. Goals are answered on policy/status.
 #include <actionlib/client/action_client.h>
 #include <geometry_msgs/PoseStamped.h>
 #include <nav_msgs/Odometry.h>
@@ -19,9 +21,11 @@
 #include <ros/ros.h>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
+#include <std_msgs/String.h>
 #include <tf2_ros/transform_listener.h>
 
 #include <quad_common/strict_yaml.h>
+#include <quad_common/wait_connected.h>
 #include <quad_policy/abi.h>
 #include <quad_policy/config.h>
 #include <quad_policy/policy_decider.h>
@@ -31,6 +35,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <condition_variable>
 #include <cstdio>
 #include <deque>
 #include <map>
@@ -67,6 +72,8 @@ class PolicyNode {
     if (pnh_.getParam("num_threads", threads) && threads > 0) cfg_.num_threads = threads;
     bool send = true;
     if (pnh_.getParam("send_to_tracker", send)) cfg_.send_to_tracker = send;
+    tracker_accept_timeout_s_ = pnh_.param<double>("tracker_accept_timeout_s", 1.0);
+    odom_period_s_ = pnh_.param<double>("odom_period_s", 0.005);
     if (cfg_.policy_file.empty())
       throw std::runtime_error("no policy file: set policy_file in the config or ~policy_file");
 
@@ -94,8 +101,12 @@ class PolicyNode {
     proposal_pub_ = nh_.advertise<quad_msgs::Bspline>("policy/proposal", 10);
     decision_pub_ = nh_.advertise<quad_msgs::PolicyDecision>("policy/decision", 100);
     ack_pub_ = nh_.advertise<quad_msgs::FrameAck>("sim/frame_ack", 100);
+    status_pub_ = nh_.advertise<std_msgs::String>("policy/status", 10, true);
     switch_client_ = nh_.serviceClient<quad_msgs::SwitchTracker>("tracker/switch");
 
+    // Subscribe to frames once the simulator can hear this node's acknowledgements (up to 5 s: a simulator
+    // that is not lockstepped may never connect).
+    quad_common::WaitForSubscriber(ack_pub_, 5.0);
     // Depth frames are decided on their own thread so odometry and goals keep arriving meanwhile.
     ros::SubscribeOptions ops = ros::SubscribeOptions::create<sensor_msgs::Image>(
         "camera/depth/image", 2, [this](const sensor_msgs::Image::ConstPtr& msg) { OnDepth(msg); },
@@ -130,21 +141,34 @@ class PolicyNode {
     o.state.p_world_body = Eigen::Vector3d(p.x, p.y, p.z);
     o.state.q_world_body = Eigen::Quaterniond(q.w, q.x, q.y, q.z);
     o.state.v_world = Eigen::Vector3d(v.x, v.y, v.z);  // twist in the world frame (docs/CONVENTIONS.md)
-    std::lock_guard<std::mutex> lock(mu_);
-    odom_.push_back(o);
-    while (odom_.size() > 400) odom_.pop_front();
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      odom_.push_back(o);
+      while (odom_.size() > 400) odom_.pop_front();
+    }
+    odom_cv_.notify_all();
   }
 
   void OnGoal(const geometry_msgs::PoseStamped::ConstPtr& msg) {
     const auto& p = msg->pose.position;
     const Eigen::Vector3d g(p.x, p.y, p.z);
+    std_msgs::String answer;
     if (!g.allFinite()) {
       ROS_WARN("policy_node: goal with NaN/Inf ignored");
+      answer.data = "goal rejected: not finite";
+      status_pub_.publish(answer);
       return;
     }
-    std::lock_guard<std::mutex> lock(mu_);
-    goal_ = g;
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      goal_ = g;
+    }
     ROS_INFO("policy_node: goal (%.2f, %.2f, %.2f)", g.x(), g.y(), g.z());
+    // After the goal is stored: an episode runner in lockstep releases the frame once it reads this.
+    char text[96];
+    std::snprintf(text, sizeof(text), "goal accepted: (%.2f, %.2f, %.2f)", g.x(), g.y(), g.z());
+    answer.data = text;
+    status_pub_.publish(answer);
   }
 
   void OnCameraInfo(const sensor_msgs::CameraInfo::ConstPtr& msg) {
@@ -167,12 +191,28 @@ class PolicyNode {
 
   void Count(const std::string& name) { ++counts_[name]; }
 
+  bool HasGoal() {
+    std::lock_guard<std::mutex> lock(mu_);
+    return goal_.has_value();
+  }
+
   void OnDepth(const sensor_msgs::Image::ConstPtr& msg) {
     // actionlib's ActionClient waits for a valid ROS time when it is built; under use_sim_time a lockstepped
     // simulator publishes /clock only once this node's depth subscription is up, so the client is built here,
-    // on the first frame (the goal of an episode comes seconds later: the client has connected by then).
+    // on the first frame. The goal of an episode comes seconds later, but in lockstep those seconds can pass
+    // in a fraction of a wall second: until the connection is confirmed, frames without a goal wait for it
+    // (up to 50 ms each, 5 s in all, in case there is no tracker), so the first trajectory is not lost to a
+    // connection still being set up. The confirmation needs the server's periodic status, i.e. sim time
+    // passing: hence a short wait per frame rather than one long one.
     if (cfg_.send_to_tracker && !track_client_) {
       track_client_ = std::make_unique<TrackClient>(nh_, "tracker/track_bspline");
+    }
+    if (track_client_ && connect_wait_left_s_ > 0.0 && !track_client_->isServerConnected() && !HasGoal()) {
+      const auto t0 = std::chrono::steady_clock::now();
+      while (!track_client_->isServerConnected() && MsSince(t0) < 50.0 && ros::ok()) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(2));
+      }
+      connect_wait_left_s_ -= MsSince(t0) / 1000.0;
     }
     quad_msgs::PolicyDecision out;
     out.header = msg->header;
@@ -190,6 +230,7 @@ class PolicyNode {
       out.last_tracker_rejection = last_rejection_;
     }
     decision_pub_.publish(out);
+    WaitTrackerAccept();
     // Lockstep: acknowledge after deciding (and sending), whatever the outcome.
     quad_msgs::FrameAck ack;
     ack.consumer = cfg_.lockstep_consumer;
@@ -218,7 +259,13 @@ class PolicyNode {
     std::optional<sensor_msgs::CameraInfo> info;
     std::optional<ros::Time> last_decision;
     {
-      std::lock_guard<std::mutex> lock(mu_);
+      // The frame's own odometry (its control period's, published before the frame) travels on another
+      // topic: wait for it (bounded), so that which odometry a decision starts from does not depend on
+      // message timing. Without it, the newest older one is used.
+      std::unique_lock<std::mutex> lock(mu_);
+      odom_cv_.wait_for(lock, std::chrono::milliseconds(200), [&] {
+        return !odom_.empty() && odom_.back().stamp_s > stamp - odom_period_s_ + 1e-6;
+      });
       goal = goal_;
       last_decision = last_decision_stamp_;
       for (auto it = odom_.rbegin(); it != odom_.rend(); ++it) {
@@ -343,10 +390,49 @@ class PolicyNode {
     goal.bspline = msg;
     TrackClient::GoalHandle gh =
         track_client_->sendGoal(goal, [this](TrackClient::GoalHandle h) { OnTransition(h); });
+    // Waited for even when the connection is not confirmed yet: actionlib confirms it only once the server's
+    // status has arrived, which can be after the first goals, and those must take effect at the same step in
+    // every run too. Only after a wait timed out without a confirmed connection (no tracker at all), the next
+    // goals are not waited for until the connection is confirmed.
+    const bool connected = track_client_->isServerConnected();
+    if (connected) no_tracker_ = false;
+    if (connected || !no_tracker_) {
+      sent_ = gh;
+      sent_traj_id_ = msg.traj_id;
+    }
     std::lock_guard<std::mutex> lock(action_mu_);
     // The handles keep the goals tracked until their results arrive; older goals are long decided.
     handles_.push_back(gh);
     while (handles_.size() > 64) handles_.pop_front();
+  }
+
+  // Waits (wall time, at most tracker_accept_timeout_s) until the tracker has answered this frame's
+  // trajectory. In lockstep the simulator steps on once the frame is acknowledged; the tracker applies a
+  // trajectory from the first odometry after it took it, so without this wait the step it starts at would
+  // depend on message timing. The comm state is read without holding accept_mu_ (actionlib holds its own
+  // lock while it calls OnTransition, which takes accept_mu_).
+  void WaitTrackerAccept() {
+    if (!sent_) return;
+    const TrackClient::GoalHandle gh = *sent_;
+    sent_.reset();
+    const auto deadline =
+        std::chrono::steady_clock::now() + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                               std::chrono::duration<double>(tracker_accept_timeout_s_));
+    while (gh.getCommState() == actionlib::CommState::WAITING_FOR_GOAL_ACK) {
+      if (!ros::ok()) return;
+      if (std::chrono::steady_clock::now() >= deadline) {
+        if (!track_client_->isServerConnected()) no_tracker_ = true;
+        ++tracker_accept_timeouts_;
+        Count("tracker_accept_timeout");
+        ROS_WARN("policy_node: the tracker did not take trajectory %ld within %.2f s (%lu times so far)",
+                 static_cast<long>(sent_traj_id_), tracker_accept_timeout_s_,
+                 static_cast<unsigned long>(tracker_accept_timeouts_));
+        return;
+      }
+      // Woken by any transition; the short timeout covers a wake-up missed.
+      std::unique_lock<std::mutex> lock(accept_mu_);
+      accept_cv_.wait_for(lock, std::chrono::milliseconds(2));
+    }
   }
 
   void SetHovering(bool hovering) {
@@ -356,6 +442,8 @@ class PolicyNode {
 
   // Transition callbacks run on the main spinner thread.
   void OnTransition(TrackClient::GoalHandle gh) {
+    { std::lock_guard<std::mutex> lock(accept_mu_); }
+    accept_cv_.notify_all();
     if (gh.getCommState() != actionlib::CommState::DONE) return;
     if (gh.getTerminalState() == actionlib::TerminalState::REJECTED) {
       std::lock_guard<std::mutex> lock(action_mu_);
@@ -384,13 +472,15 @@ class PolicyNode {
   std::unique_ptr<quad_policy::PolicyDecider> decider_;
 
   ros::Subscriber odom_sub_, goal_sub_, info_sub_, status_sub_, depth_sub_;
-  ros::Publisher bspline_pub_, proposal_pub_, decision_pub_, ack_pub_;
+  ros::Publisher bspline_pub_, proposal_pub_, decision_pub_, ack_pub_, status_pub_;
   ros::ServiceClient switch_client_;
   std::unique_ptr<TrackClient> track_client_;  // built and used on the depth thread
   ros::CallbackQueue depth_queue_;
   std::thread depth_thread_;
 
   std::mutex mu_;  // guards the inputs below (written by the main spinner, read by the depth thread)
+  std::condition_variable odom_cv_;  // an odometry message arrived
+  double odom_period_s_ = 0.005;
   std::deque<OdomSample> odom_;
   std::optional<Eigen::Vector3d> goal_;
   std::optional<sensor_msgs::CameraInfo> camera_info_;
@@ -402,6 +492,14 @@ class PolicyNode {
   std::optional<Eigen::Isometry3d> T_body_camera_;
   std::map<std::string, uint64_t> counts_;
   int64_t traj_id_ = 0;
+  std::optional<TrackClient::GoalHandle> sent_;  // this frame's trajectory, until the tracker answers
+  int64_t sent_traj_id_ = 0;
+  double tracker_accept_timeout_s_ = 1.0;
+  uint64_t tracker_accept_timeouts_ = 0;
+  bool no_tracker_ = false;           // a wait timed out without a confirmed connection
+  double connect_wait_left_s_ = 5.0;  // wall time left to wait for the tracker's connection at start-up
+  std::mutex accept_mu_;
+  std::condition_variable accept_cv_;
 
   std::mutex action_mu_;
   std::deque<TrackClient::GoalHandle> handles_;

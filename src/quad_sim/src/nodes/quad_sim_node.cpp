@@ -307,7 +307,8 @@ class QuadSimNode {
   }
 
   // In lockstep, the first step of an episode waits until the command sources and depth consumers are
-  // connected, so that no message of the episode is lost to a connection still being set up.
+  // connected (a command publisher, a depth subscriber and one FrameAck publisher per named consumer), so
+  // that no message of the episode is lost to a connection still being set up.
   void WaitForLockstepPeers() {
     if (config_.time.mode != quad_sim::TimeMode::kLockstep) return;
     const bool need_cmd = config_.lockstep.wait_for_command;
@@ -317,8 +318,13 @@ class QuadSimNode {
     while (ros::ok() && !ResetPending()) {
       const bool cmd_ok = !need_cmd || (odom_pub_.getNumSubscribers() > 0 &&
                                         so3_sub_.getNumPublishers() + trpy_sub_.getNumPublishers() > 0);
+      // Every consumer is a node of its own with a FrameAck publisher: wait until all of them are
+      // connected, so that no consumer's first acknowledgement is lost (with "any one", a consumer that
+      // subscribed to frames before the simulator had connected to its publisher stalled the simulator for a
+      // whole lockstep timeout at the first frame).
       const bool ack_ok =
-          !need_ack || (depth_pub_.getNumSubscribers() > 0 && ack_sub_.getNumPublishers() > 0);
+          !need_ack || (depth_pub_.getNumSubscribers() > 0 &&
+                        ack_sub_.getNumPublishers() >= config_.lockstep.depth_consumers.size());
       if (cmd_ok && ack_ok) return;
       if (!logged) {
         ROS_INFO("quad_sim lockstep: waiting for %s%s%s to connect", need_cmd ? "a command publisher" : "",

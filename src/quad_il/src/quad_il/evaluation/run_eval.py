@@ -7,7 +7,7 @@ flown by each controller (expert, Python policy, C++ policy); then the Markdown 
         [--episode-mode relaunch|reset] [--report-only]
 
 Per controller: a private ROS master with `roslaunch quad_il infer.launch controller:=<c>` (simulator in
-lockstep with the controller as depth consumer, tracker, controller), then `python -m
+lockstep with the controller and the runner as depth consumers, tracker, controller), then `python -m
 quad_il.evaluation.runner` flies every episode through the simulator's reset service; results are appended
 to OUT/<controller>.jsonl (an interrupted run resumes after the last finished episode). A controller whose
 node is not built is reported as unavailable. With
@@ -43,6 +43,7 @@ ROOT = Path(os.environ.get("QUAD_IL_ROOT") or Path(__file__).resolve().parents[5
 CONTROLLERS = ("expert", "py", "cpp")
 # The FrameAck consumer of each controller (config/policy.yaml lockstep_consumer; planner.launch's default).
 CONSUMER = {"expert": "fast_planner", "py": "policy", "cpp": "policy"}
+RUNNER_CONSUMER = "eval_runner"  # the episode runner's own FrameAck consumer name
 NODE = {
     "expert": ("fast_planner", "fast_planner_node"),
     "py": ("quad_il", "policy_node.py"),
@@ -63,17 +64,18 @@ def parse_seeds(text: str) -> list[int]:
 
 
 def eval_sim_config(base_path: Path, controller: str, density: float | None) -> dict:
-    """The simulator config of an evaluation run: the base config in lockstep with the controller as depth
-    consumer (reproducible under any load), the box density if given, no episode time limit (the runner times
-    out), collisions end the episode."""
+    """The simulator config of an evaluation run: the base config in lockstep with the controller and the
+    episode runner as depth consumers (reproducible under any load), the box density if given, no episode
+    time limit (the runner times out), collisions end the episode."""
     cfg = yaml.safe_load(base_path.read_text())
     cfg["vehicle_file"] = str((base_path.parent / cfg["vehicle_file"]).resolve())
     if cfg["world"].get("file"):
         cfg["world"]["file"] = str((base_path.parent / cfg["world"]["file"]).resolve())
     cfg["time"]["mode"] = "lockstep"
-    cfg["lockstep"]["depth_consumers"] = [CONSUMER[controller]]
+    cfg["lockstep"]["depth_consumers"] = [CONSUMER[controller], RUNNER_CONSUMER]
     cfg["lockstep"]["wait_for_command"] = True
-    cfg["lockstep"]["timeout_s"] = 10.0
+    # Long enough for the runner to start beside a launch that is already stepping (it is a consumer).
+    cfg["lockstep"]["timeout_s"] = 20.0
     cfg["episode"]["max_duration_s"] = 0.0
     cfg["collision"]["policy"] = "freeze"
     if density is not None:
@@ -147,6 +149,10 @@ def _run_runner(
         str(out / f"{controller}.jsonl"),
         "--episode-timeout-s",
         str(args.episode_timeout_s),
+        "--lockstep-consumer",
+        RUNNER_CONSUMER,
+        "--controller-consumer",
+        CONSUMER[controller],
     ]
     if no_reset:
         cmd.append("--no-reset")

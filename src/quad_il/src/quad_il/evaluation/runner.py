@@ -4,11 +4,14 @@ episode's outcome, time to goal, path length, clearance and decision latencies.
 
 Per episode: reset the simulator into the episode's seeded world with the vehicle on the ground at the start,
 take off with the tracker's line tracker to the start altitude, publish the goal on /planner/goal, and wait
-(sim time) for goal reached, collision or the timeout. Decision latencies come from policy/decision (policy
-nodes: preprocessing + forward + message) or planner/timing (expert: map update + plan).
+(sim time) for goal reached, collision or the timeout. Every step is taken at a depth frame; in lockstep the
+runner is one of the simulator's depth consumers and acts at held frames (quad_il.lockstep), so the same
+episode's flight starts at the same sim time in every run. Decision latencies come from policy/decision
+(policy nodes: preprocessing + forward + message) or planner/timing (expert: map update + plan).
 
     python -m quad_il.evaluation.runner --episodes episodes.json --controller cpp --out cpp.jsonl
         [--episode-timeout-s 60] [--takeoff-timeout-s 20] [--vehicle-box-m 0.25,0.25,0.25]
+        [--lockstep-consumer eval_runner --controller-consumer policy] [--no-reset]
 (needs ROS_MASTER_URI of a running simulator + tracker + controller; results are appended as JSON lines)
 """
 
@@ -25,60 +28,90 @@ import numpy as np
 import rospy
 from geometry_msgs.msg import Point, Pose, PoseStamped, Quaternion
 from nav_msgs.msg import Odometry
+from std_msgs.msg import String
 from visualization_msgs.msg import MarkerArray
 
 from quad_il.collection.episodes import EpisodeSpec
 from quad_il.evaluation.episodes import GROUND_Z_M, EpisodeResult, append_result, read_episodes
 from quad_il.evaluation.metrics import Box, clearance_lower_bound, path_length
-from quad_msgs.msg import EpisodeStatus, PlanTiming, PolicyDecision
-from quad_msgs.srv import Goto, ResetEpisode
+from quad_il.lockstep import FrameGate, Interrupted, OdometryHistory, TrackerGoto, wait_until
+from quad_msgs.msg import EpisodeStatus, FrameAck, PlanTiming, PolicyDecision
+from quad_msgs.srv import ResetEpisode
+
+# Where each controller answers a goal ("goal accepted: ..." / "goal rejected: ...").
+STATUS_TOPIC = {"expert": "/planner/status", "py": "/policy/status", "cpp": "/policy/status"}
+WALL_WAIT_S = 30.0  # wall-time limit of any wait on another node
 
 
 class EpisodeRunner:
+    """Flies episodes frame by frame. With `consumer` (lockstep): the runner is one of the simulator's depth
+    consumers and acts at held frames (quad_il.lockstep): the take-off's goto once the tracker has answered
+    the frame's control period, the goal once the controller has decided the frame and then answered the
+    goal. So every run of an episode starts its flight at the same sim time with the same state, and a
+    deterministic controller flies it the same way. Without (`consumer` None) it acts at the newest frame."""
+
     def __init__(
         self,
         controller: str,
         episode_timeout_s: float = 60.0,
         takeoff_timeout_s: float = 20.0,
         vehicle_box_m: tuple[float, float, float] = (0.25, 0.25, 0.25),
+        consumer: str | None = None,
+        controller_consumer: str = "",
     ) -> None:
+        """controller_consumer: the controller's FrameAck consumer name (lockstep; waited for before the
+        goal is published at a frame, so that the goal takes effect from the next frame on)."""
         self.controller = controller
         self.episode_timeout_s = episode_timeout_s
         self.takeoff_timeout_s = takeoff_timeout_s
         self.vehicle_box_m = np.asarray(vehicle_box_m, dtype=np.float64)
+        self.lockstep = consumer is not None
+        self.controller_consumer = controller_consumer
+        if self.lockstep and not controller_consumer:
+            raise ValueError("a lockstep runner needs the controller's FrameAck consumer name")
         self._lock = threading.Lock()
+        self._cv = threading.Condition(self._lock)
         self._status: EpisodeStatus | None = None
-        self._odom: Odometry | None = None
-        self._odom_count = 0
+        self._first_status: rospy.Time | None = None
         self._boxes: list[Box] = []
         self._markers_seen = 0
-        self._recording = False
+        self._controller_ack = 0.0
+        self._answers: list[str] = []
         self._points: list[tuple[float, float, float, float]] = []
         self._decisions: list[PolicyDecision] = []
         self._timings: list[PlanTiming] = []
         rospy.Subscriber("/sim/status", EpisodeStatus, self._on_status, queue_size=10)
-        rospy.Subscriber("/odom", Odometry, self._on_odom, queue_size=50, tcp_nodelay=True)
+        rospy.Subscriber("/odom", Odometry, self._on_odom, queue_size=400, tcp_nodelay=True)
         rospy.Subscriber("/sim/world_markers", MarkerArray, self._on_markers, queue_size=2)
         rospy.Subscriber("/policy/decision", PolicyDecision, self._on_decision, queue_size=200)
         rospy.Subscriber("/planner/timing", PlanTiming, self._on_timing, queue_size=200)
+        rospy.Subscriber(STATUS_TOPIC[controller], String, self._on_answer, queue_size=100)
+        if self.lockstep:  # (a subscriber would count as connected for the nodes that wait for one)
+            rospy.Subscriber("/sim/frame_ack", FrameAck, self._on_ack, queue_size=200, tcp_nodelay=True)
         self.goal_pub = rospy.Publisher("/planner/goal", PoseStamped, queue_size=1, latch=True)
+        self.odom = OdometryHistory(wall_wait_s=WALL_WAIT_S)
+        self.goto = TrackerGoto(self.lockstep, wall_wait_s=WALL_WAIT_S)
+        self.frames = FrameGate(consumer or "", self.lockstep, self._first_status_stamp, WALL_WAIT_S)
         rospy.wait_for_service("/sim/reset", timeout=60.0)
         rospy.wait_for_service("/tracker/goto", timeout=60.0)
         self.reset_srv = rospy.ServiceProxy("/sim/reset", ResetEpisode)
-        self.goto_srv = rospy.ServiceProxy("/tracker/goto", Goto)
 
     # ---- callbacks ----
     def _on_status(self, msg: EpisodeStatus) -> None:
-        with self._lock:
+        with self._cv:
             self._status = msg
+            if self._first_status is None:
+                self._first_status = msg.header.stamp
+            self._cv.notify_all()
+
+    def _first_status_stamp(self) -> rospy.Time | None:
+        with self._lock:
+            return self._first_status
 
     def _on_odom(self, msg: Odometry) -> None:
+        p = msg.pose.pose.position
         with self._lock:
-            self._odom = msg
-            self._odom_count += 1
-            if self._recording:
-                p = msg.pose.pose.position
-                self._points.append((msg.header.stamp.to_sec(), p.x, p.y, p.z))
+            self._points.append((msg.header.stamp.to_sec(), p.x, p.y, p.z))
 
     def _on_markers(self, msg: MarkerArray) -> None:
         boxes = [
@@ -92,44 +125,76 @@ class EpisodeRunner:
             for m in msg.markers
             if m.ns == "boxes" and m.action == m.ADD
         ]
-        with self._lock:
+        with self._cv:
             self._boxes = boxes
             self._markers_seen += 1
+            self._cv.notify_all()
 
     def _on_decision(self, msg: PolicyDecision) -> None:
-        with self._lock:
-            if self._recording:
-                self._decisions.append(msg)
+        with self._cv:
+            self._decisions.append(msg)
+            self._cv.notify_all()
 
     def _on_timing(self, msg: PlanTiming) -> None:
         with self._lock:
-            if self._recording:
-                self._timings.append(msg)
+            self._timings.append(msg)
+
+    def _on_answer(self, msg: String) -> None:
+        with self._cv:
+            self._answers.append(msg.data)
+            self._cv.notify_all()
+
+    def _on_ack(self, msg: FrameAck) -> None:
+        if msg.consumer == self.controller_consumer:
+            with self._cv:
+                self._controller_ack = max(self._controller_ack, msg.stamp.to_sec())
+                self._cv.notify_all()
 
     # ---- helpers ----
-    def _wait(self, predicate: Callable[[], bool], timeout_sim_s: float, wall_cap_s: float = 600.0) -> bool:
-        """Wait until predicate() holds: False after timeout_sim_s of sim time (which stands still while the
-        simulator waits for its lockstep peers), after wall_cap_s of wall time, or on shutdown."""
-        t_end = rospy.Time.now() + rospy.Duration(timeout_sim_s)
-        wall_end = time.monotonic() + wall_cap_s
-        while not rospy.is_shutdown() and time.monotonic() < wall_end:
-            with self._lock:
-                if predicate():
-                    return True
-            if rospy.Time.now() > t_end:
-                return False
-            time.sleep(0.002)
-        return False
+    def _wait(self, predicate: Callable[[], bool], what: str, timeout_wall_s: float = WALL_WAIT_S) -> None:
+        wait_until(self._cv, predicate, what, timeout_wall_s)
 
     def _result(self, spec: EpisodeSpec, outcome: str, reason: str) -> EpisodeResult:
         return EpisodeResult(self.controller, spec.index, spec.seed, outcome, reason)
 
+    def _publish_goal(self, spec: EpisodeSpec, t: float) -> str:
+        """Publish the goal at the held frame t; in lockstep first wait until the controller has decided
+        frame t (so the goal counts from the next frame on), and then for its answer. Returns the answer."""
+        if self.lockstep:
+            self._wait(
+                lambda: self._controller_ack >= t - 1e-9, f"controller acknowledgement of frame {t:.3f}"
+            )
+        with self._lock:
+            n_answers = len(self._answers)
+        goal = PoseStamped()
+        goal.header.stamp = rospy.Time.from_sec(t)
+        goal.header.frame_id = "world"
+        goal.pose.position = Point(*spec.goal_world)
+        goal.pose.orientation.w = 1.0
+        self.goal_pub.publish(goal)
+        if not self.lockstep:
+            return ""
+        answer: list[str] = []
+
+        def answered() -> bool:
+            for a in self._answers[n_answers:]:
+                if a.startswith(("goal accepted", "goal rejected")):
+                    answer.append(a)
+                    return True
+            return False
+
+        self._wait(answered, f"answer of the {self.controller} controller to the goal")
+        return answer[0]
+
     # ---- one episode ----
     def run(self, spec: EpisodeSpec, reset: bool = True) -> EpisodeResult:
         """Flies one episode. reset=False: the simulator already runs this episode (its config holds the
-        episode's world seed, start and goal), e.g. right after its launch."""
+        episode's world seed, start and goal), e.g. right after its launch. Raises TimeoutError when a node
+        does not answer within WALL_WAIT_S (wall time): a broken setup, not an outcome of the controller."""
         sx, sy, sz = spec.start_world
         yaw = spec.start_yaw_rad
+        with self._lock:
+            self._points, self._decisions, self._timings = [], [], []
         if reset:
             start = Pose(
                 position=Point(sx, sy, GROUND_Z_M),
@@ -138,86 +203,108 @@ class EpisodeRunner:
             with self._lock:
                 markers_before = self._markers_seen
             resp = self.reset_srv(seed=spec.seed, world_file="", start=start, goal=Point(*spec.goal_world))
+            self.frames.held = None  # the reset released the held frame
             if not resp.success:
                 return self._result(spec, "reset_failed", resp.message)
             episode_id = resp.episode_id
-            if not self._wait(
-                lambda: self._status is not None and self._status.episode_id == episode_id, 10.0
-            ):
-                return self._result(spec, "reset_failed", "no status for the new episode")
+            self._wait(
+                lambda: self._status is not None and self._status.episode_id == episode_id,
+                f"status of episode {episode_id}",
+            )
             # The simulator republishes its (latched) world markers at a reset: wait for this world's boxes.
-            self._wait(lambda: self._markers_seen > markers_before, 5.0)
+            self._wait(lambda: self._markers_seen > markers_before, "world markers of the new episode")
         else:
-            if not self._wait(lambda: self._status is not None and self._markers_seen > 0, 60.0):
-                return self._result(spec, "reset_failed", "no status or world markers from the simulator")
-            episode_id = self._status.episode_id
-        # The new episode's odometry must reach the tracker before the goto starts from it (in lockstep the
-        # simulator first waits for its command source and depth consumers to connect).
+            self._wait(
+                lambda: self._status is not None and self._markers_seen > 0,
+                "simulator status and world markers",
+            )
         with self._lock:
-            odom_before = self._odom_count
-        if not self._wait(lambda: self._odom_count > odom_before + 2, 10.0):
-            return self._result(spec, "takeoff_failed", "no odometry after the reset")
-        takeoff = np.array([sx, sy, sz])
+            episode_id = self._status.episode_id
+            t_episode = self._status.header.stamp.to_sec()
+        # The first hold comes after the start-up acknowledgement's stamp whether or not this node got the
+        # simulator's first frames (quad_il.lockstep): the same frame in every run.
+        self.frames.fix_startup()
+        # Take-off at the first frame of the episode that the tracker takes the goto at.
+        t, _ = self.frames.next_frame(t_episode)
         why = ""
         for _ in range(20):
-            resp = self.goto_srv(position=Point(sx, sy, sz), yaw=yaw, max_vel_mps=0.0, max_acc_mps2=0.0)
-            if resp.success:
+            why = self.goto((sx, sy, sz), yaw, at_s=t)
+            self.frames.ack()
+            if not why:
                 break
-            why = resp.message
-            rospy.sleep(0.1)
+            t, _ = self.frames.next_frame(t)
         else:
             return self._result(spec, "takeoff_failed", f"goto refused: {why}")
-
-        def at_takeoff() -> bool:
-            o = self._odom
-            if o is None:
-                return False
-            p, v = o.pose.pose.position, o.twist.twist.linear
-            return bool(
-                np.linalg.norm([p.x - sx, p.y - sy, p.z - sz]) < 0.15 and math.hypot(v.x, v.y, v.z) < 0.3
-            )
-
-        if not self._wait(at_takeoff, self.takeoff_timeout_s):
-            return self._result(
-                spec, "takeoff_failed", f"take-off to {takeoff.round(2).tolist()} did not settle"
-            )
-        with self._lock:
-            self._points, self._decisions, self._timings = [], [], []
-            self._recording = True
-        goal = PoseStamped()
-        goal.header.stamp = rospy.Time.now()
-        goal.header.frame_id = "world"
-        goal.pose.position = Point(*spec.goal_world)
-        goal.pose.orientation.w = 1.0
-        t0 = goal.header.stamp.to_sec()
-        self.goal_pub.publish(goal)
-
-        def ended() -> bool:
-            s = self._status
-            return (
+        t_takeoff = t
+        while True:
+            t, _ = self.frames.next_frame(t)
+            p, speed = self.odom.at(t)
+            if math.dist(p, (sx, sy, sz)) < 0.15 and speed < 0.3:
+                break
+            if t - t_takeoff > self.takeoff_timeout_s:
+                return self._result(
+                    spec,
+                    "takeoff_failed",
+                    f"take-off to {[round(v, 2) for v in (sx, sy, sz)]} did not settle",
+                )
+            self.frames.ack()
+        answer = self._publish_goal(spec, t)
+        t0 = t
+        self.frames.ack()
+        if answer.startswith("goal rejected"):
+            return self._result(spec, "reset_failed", f"the controller refused the episode's goal: {answer}")
+        # Fly, one frame at a time, until the simulator reports the end or the sim-time limit.
+        outcome, reason = "timeout", f"no goal within {self.episode_timeout_s:g} s"
+        frames = [t0]
+        while True:
+            t, _ = self.frames.next_frame(t)
+            with self._lock:
+                s = self._status
+            if (
                 s is not None
                 and s.episode_id == episode_id
                 and (s.reached_goal or s.collided or not s.active)
-            )
+            ):
+                t_end = s.sim_time.to_sec()
+                if s.reached_goal:
+                    outcome, reason = "goal_reached", s.reason
+                elif s.collided:
+                    outcome, reason = "collision", s.reason
+                else:
+                    reason = f"episode ended: {s.reason}"
+                break
+            frames.append(t)
+            if t - t0 > self.episode_timeout_s:
+                t_end = t
+                break
+            self.frames.ack()
+        # The frame at which the episode ended stays held (lockstep): nothing happens after it. The policy's
+        # decision of the last frame up to the end is on its way (on another topic than its acknowledgement).
+        if self.controller != "expert":
+            last = max(f for f in frames if f <= t_end + 1e-6)
+            try:
+                self._wait(
+                    lambda: any(d.header.stamp.to_sec() >= last - 1e-6 for d in self._decisions),
+                    f"policy decision of frame {last:.3f}",
+                    5.0,
+                )
+            except TimeoutError:
+                rospy.logwarn(f"[eval] no policy decision of frame {last:.3f}: counted from those that came")
+        return self._finish(spec, outcome, reason, t0, t_end)
 
-        finished = self._wait(ended, self.episode_timeout_s)
+    def _finish(self, spec: EpisodeSpec, outcome: str, reason: str, t0: float, t_end: float) -> EpisodeResult:
+        """The episode's result from what was recorded between the goal (t0) and the end (t_end), sim time."""
+        eps = 1e-6
         with self._lock:
-            self._recording = False
-            status = self._status
-            points = np.asarray(self._points, dtype=np.float64).reshape(-1, 4)
-            decisions = list(self._decisions)
-            timings = list(self._timings)
+            points = np.asarray(
+                [q for q in self._points if t0 - eps <= q[0] <= t_end + eps], dtype=np.float64
+            ).reshape(-1, 4)
+            decisions = [d for d in self._decisions if t0 - eps <= d.header.stamp.to_sec() <= t_end + eps]
+            timings = [m for m in self._timings if t0 - eps <= m.header.stamp.to_sec() <= t_end + eps]
             boxes = list(self._boxes)
-        t_end = rospy.Time.now().to_sec()
-        if not finished:
-            res = self._result(spec, "timeout", f"no goal within {self.episode_timeout_s} s")
-        elif status.reached_goal:
-            res = self._result(spec, "goal_reached", status.reason)
-            res.time_to_goal_s = status.sim_time.to_sec() - t0
-        elif status.collided:
-            res = self._result(spec, "collision", status.reason)
-        else:
-            res = self._result(spec, "timeout", f"episode ended: {status.reason}")
+        res = self._result(spec, outcome, reason)
+        if outcome == "goal_reached":
+            res.time_to_goal_s = t_end - t0
         res.flight_time_s = t_end - t0
         res.path_length_m = path_length(points[:, 1:])
         res.min_clearance_m = clearance_lower_bound(points[:, 1:], boxes, self.vehicle_box_m)
@@ -230,7 +317,7 @@ class EpisodeRunner:
             res.decision_ms = [round(d.decision_ms, 4) for d in decided]
         elif timings:
             res.decisions = len(timings)
-            res.decision_ms = [round(t.map_update_ms + t.total_ms, 4) for t in timings]
+            res.decision_ms = [round(m.map_update_ms + m.total_ms, 4) for m in timings]
         if decisions:
             last = decisions[-1]
             res.counts = dict(zip(last.count_names, (int(v) for v in last.count_values), strict=True))
@@ -263,6 +350,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--takeoff-timeout-s", type=float, default=20.0)
     ap.add_argument("--vehicle-box-m", default="0.25,0.25,0.25")
     ap.add_argument(
+        "--lockstep-consumer",
+        default="",
+        help="FrameAck consumer name of this runner, listed in the simulator's lockstep.depth_consumers: "
+        "act at held frames (reproducible flights); '' acts at the newest frame",
+    )
+    ap.add_argument(
+        "--controller-consumer",
+        default="",
+        help="the controller's FrameAck consumer name (with --lockstep-consumer)",
+    )
+    ap.add_argument(
         "--no-reset",
         action="store_true",
         help="one episode, the one the simulator runs since its start (its config holds seed, start, goal)",
@@ -275,7 +373,17 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     rospy.init_node(f"eval_runner_{args.controller}", disable_signals=False)
     box = tuple(float(x) for x in args.vehicle_box_m.split(","))
-    runner = EpisodeRunner(args.controller, args.episode_timeout_s, args.takeoff_timeout_s, box)
+    if args.lockstep_consumer and not args.controller_consumer:
+        print("[eval] --lockstep-consumer needs --controller-consumer", file=sys.stderr)
+        return 1
+    runner = EpisodeRunner(
+        args.controller,
+        args.episode_timeout_s,
+        args.takeoff_timeout_s,
+        box,
+        consumer=args.lockstep_consumer or None,
+        controller_consumer=args.controller_consumer,
+    )
     specs = read_episodes(args.episodes)
     if args.no_reset and len(specs) != 1:
         print("[eval] --no-reset flies exactly one episode", file=sys.stderr)
@@ -284,7 +392,11 @@ def main(argv: list[str] | None = None) -> int:
         if rospy.is_shutdown():
             return 1
         wall0 = time.monotonic()
-        res = runner.run(spec, reset=not args.no_reset)
+        try:
+            res = runner.run(spec, reset=not args.no_reset)
+        except (TimeoutError, Interrupted) as exc:
+            print(f"[eval {args.controller}] episode {spec.index} seed {spec.seed}: {exc}", file=sys.stderr)
+            return 1
         append_result(args.out, res)
         print(
             f"[eval {args.controller}] episode {spec.index} seed {spec.seed}: {res.outcome} ({res.reason}); "

@@ -3,8 +3,9 @@ quad_policy/policy_node (docs/inference.md). nodes/policy_node.py runs `main()`.
 
 Per depth frame: pair it with the newest odometry not newer than the frame, decide (PolicyDecider), publish
 the trajectory to fly on planner/bspline and send it to the tracker action tracker/track_bspline (a refused
-plan sends the stopping trajectory, or switches the tracker to hover), publish policy/decision, then
-acknowledge the frame (lockstep)."""
+plan sends the stopping trajectory, or switches the tracker to hover), publish policy/decision, wait until
+the tracker has taken the trajectory (bounded by ~tracker_accept_timeout_s, so in lockstep it takes effect
+at the same step in every run), then acknowledge the frame. Goals are answered on policy/status."""
 
 from __future__ import annotations
 
@@ -23,6 +24,7 @@ import torch
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import CameraInfo, Image
+from std_msgs.msg import String
 
 from quad_il.inference.config import PolicyConfigError, PolicyNodeConfig, load_policy_config
 from quad_il.inference.decider import DecisionInputs, PolicyDecider
@@ -61,8 +63,14 @@ def depth_from_image(msg: Image) -> np.ndarray | None:
 
 
 class PolicyNode:
-    def __init__(self, cfg: PolicyNodeConfig) -> None:
+    def __init__(
+        self, cfg: PolicyNodeConfig, tracker_accept_timeout_s: float = 1.0, odom_period_s: float = 0.005
+    ) -> None:
+        """tracker_accept_timeout_s: longest wait for the tracker to take a trajectory before the frame is
+        acknowledged; odom_period_s: the simulator's odometry period (a frame waits for its period's)."""
         self.cfg = cfg
+        self.tracker_accept_timeout_s = tracker_accept_timeout_s
+        self.odom_period_s = odom_period_s
         configure_threads(cfg.num_threads)
         policy = LoadedPolicy(cfg.policy_file)
         self.decider = PolicyDecider(policy, cfg.safety, cfg.refusal, cfg.recovery)
@@ -77,6 +85,7 @@ class PolicyNode:
         )
         self._warm_up(policy)
         self.lock = threading.Lock()
+        self.odom_cv = threading.Condition(self.lock)  # an odometry message arrived
         self.odom: collections.deque[OdomSample] = collections.deque(maxlen=400)
         self.goal: np.ndarray | None = None
         self.camera_info: CameraInfo | None = None
@@ -90,6 +99,12 @@ class PolicyNode:
         self.handles: collections.deque[actionlib.ClientGoalHandle] = collections.deque(maxlen=64)
         self.tracker_rejections = 0
         self.last_rejection = ""
+        self.action_cv = threading.Condition(self.action_lock)
+        self.sent: actionlib.ClientGoalHandle | None = (
+            None  # this frame's trajectory until the tracker answers
+        )
+        self.sent_traj_id = 0
+        self.tracker_accept_timeouts = 0
 
         self.tf_buffer = tf2_ros.Buffer()
         self.tf_listener = tf2_ros.TransformListener(self.tf_buffer)
@@ -97,6 +112,7 @@ class PolicyNode:
         self.proposal_pub = rospy.Publisher("policy/proposal", Bspline, queue_size=10)
         self.decision_pub = rospy.Publisher("policy/decision", PolicyDecision, queue_size=100)
         self.ack_pub = rospy.Publisher("sim/frame_ack", FrameAck, queue_size=100)
+        self.status_pub = rospy.Publisher("policy/status", String, queue_size=10, latch=True)
         self.switch = rospy.ServiceProxy("tracker/switch", SwitchTracker)
         self.client = (
             actionlib.ActionClient("tracker/track_bspline", TrackBsplineAction)
@@ -139,17 +155,21 @@ class PolicyNode:
             np.array([v.x, v.y, v.z]),  # twist in the world frame (docs/CONVENTIONS.md)
             np.array([q.x, q.y, q.z, q.w]),
         )
-        with self.lock:
+        with self.odom_cv:
             self.odom.append(o)
+            self.odom_cv.notify_all()
 
     def _on_goal(self, msg: PoseStamped) -> None:
         g = np.array([msg.pose.position.x, msg.pose.position.y, msg.pose.position.z])
         if not np.all(np.isfinite(g)):
             rospy.logwarn("policy_node (py): goal with NaN/Inf ignored")
+            self.status_pub.publish(String(data="goal rejected: not finite"))
             return
         with self.lock:
             self.goal = g
         rospy.loginfo(f"policy_node (py): goal ({g[0]:.2f}, {g[1]:.2f}, {g[2]:.2f})")
+        # After the goal is stored: an episode runner in lockstep releases the frame once it reads this.
+        self.status_pub.publish(String(data=f"goal accepted: ({g[0]:.2f}, {g[1]:.2f}, {g[2]:.2f})"))
 
     def _on_info(self, msg: CameraInfo) -> None:
         with self.lock:
@@ -187,6 +207,7 @@ class PolicyNode:
             out.tracker_rejections = self.tracker_rejections
             out.last_tracker_rejection = self.last_rejection
         self.decision_pub.publish(out)
+        self._wait_tracker_accept()
         # Lockstep: acknowledge after deciding (and sending), whatever the outcome.
         self.ack_pub.publish(
             FrameAck(consumer=self.cfg.lockstep_consumer, frame_seq=msg.header.seq, stamp=msg.header.stamp)
@@ -206,7 +227,13 @@ class PolicyNode:
                 f"policy_node (py): depth frame skipped: encoding {msg.encoding}, {msg.width}x{msg.height}",
             )
             return self._skip("bad_input", "depth frame is not a little-endian 32FC1 image", out)
-        with self.lock:
+        with self.odom_cv:
+            # The frame's own odometry (its control period's, published before the frame) travels on another
+            # topic: wait for it (bounded), so that which odometry a decision starts from does not depend on
+            # message timing. Without it, the newest older one is used.
+            self.odom_cv.wait_for(
+                lambda: bool(self.odom) and self.odom[-1].stamp_s > stamp - self.odom_period_s + 1e-6, 0.2
+            )
             goal = self.goal
             odom = next((o for o in reversed(self.odom) if o.stamp_s <= stamp + 1e-9), None)
             info = self.camera_info
@@ -315,8 +342,37 @@ class PolicyNode:
         gh = self.client.send_goal(TrackBsplineGoal(bspline=bspline), transition_cb=self._on_transition)
         with self.action_lock:
             self.handles.append(gh)  # keeps the goal tracked until its result arrives
+        # Not connected: no answer is coming (the goal may still arrive; it is counted above).
+        if self.client.pub_goal.get_num_connections() > 0:
+            self.sent, self.sent_traj_id = gh, bspline.traj_id
+
+    def _wait_tracker_accept(self) -> None:
+        """Wait (wall time, at most tracker_accept_timeout_s) until the tracker has answered this frame's
+        trajectory. In lockstep the simulator steps on once the frame is acknowledged; the tracker applies a
+        trajectory from the first odometry after it took it, so without this wait the step it starts at would
+        depend on message timing."""
+        gh, self.sent = self.sent, None
+        if gh is None:
+            return
+        deadline = time.monotonic() + self.tracker_accept_timeout_s
+        while gh.get_comm_state() == actionlib.CommState.WAITING_FOR_GOAL_ACK:
+            if rospy.is_shutdown():
+                return
+            left = deadline - time.monotonic()
+            if left <= 0:
+                self.tracker_accept_timeouts += 1
+                self._count("tracker_accept_timeout")
+                rospy.logwarn(
+                    f"policy_node (py): the tracker did not take trajectory {self.sent_traj_id} within "
+                    f"{self.tracker_accept_timeout_s:g} s ({self.tracker_accept_timeouts} times so far)"
+                )
+                return
+            with self.action_cv:  # woken by any transition; the short timeout covers a wake-up missed
+                self.action_cv.wait(min(left, 0.002))
 
     def _on_transition(self, gh: actionlib.ClientGoalHandle) -> None:
+        with self.action_cv:
+            self.action_cv.notify_all()
         if gh.get_comm_state() != actionlib.CommState.DONE:
             return
         if gh.get_terminal_state() == actionlib.GoalStatus.REJECTED:
@@ -361,7 +417,11 @@ def main() -> int:
         cfg = cfg.model_copy(update=overrides)
         if not cfg.policy_file:
             raise PolicyConfigError("no policy file: set policy_file in the config or ~policy_file")
-        PolicyNode(cfg)
+        PolicyNode(
+            cfg,
+            float(rospy.get_param("~tracker_accept_timeout_s", 1.0)),
+            float(rospy.get_param("~odom_period_s", 0.005)),
+        )
     except (KeyError, PolicyConfigError, PolicyFormatError, FileNotFoundError, RuntimeError) as e:
         rospy.logfatal(f"policy_node (py): {e}")
         return 1

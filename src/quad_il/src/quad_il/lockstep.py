@@ -1,0 +1,233 @@
+"""The simulator's frames as a lockstep depth consumer sees them (rospy): shared by the collection's episode
+manager and the closed-loop evaluation's episode runner.
+
+A node that takes decisions (take-off, goal, end of episode) at depth frames names itself in the simulator's
+`lockstep.depth_consumers`. The simulator then publishes nothing newer than a frame until every consumer has
+acknowledged it (FrameAck, cumulative by stamp). `FrameGate.next_frame` returns the next frame and holds it;
+the node acts on it and releases it with `ack`. What the node does at a frame therefore happens at the same
+sim time in every run, whatever the machine's load. Without lockstep (a free-running simulator) the same calls
+just return the newest frame and acknowledge nothing.
+
+Start-up: the simulator starts stepping once one depth consumer has connected, so its first frames may go out
+before this node's subscription is connected; it then waits for an acknowledgement of a frame this node never
+got. Acknowledgements are cumulative: the node acknowledges blindly the first STARTUP_ACK_S of sim time after
+the simulator's first status (it takes no decision there), once its own frame subscription is connected; the
+first frame it holds comes after that.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+import queue
+import threading
+import time
+from collections.abc import Callable
+
+import rospy
+from geometry_msgs.msg import Point
+from nav_msgs.msg import Odometry
+from sensor_msgs.msg import CameraInfo
+
+from quad_msgs.msg import FrameAck, SO3Command
+from quad_msgs.srv import Goto
+
+STARTUP_ACK_S = 0.2  # sim seconds after the simulator's first status acknowledged blindly at start-up
+
+
+class Interrupted(Exception):
+    """ROS shut down while waiting."""
+
+
+def wait_until(
+    cv: threading.Condition, predicate: Callable[[], bool], what: str, timeout_wall_s: float
+) -> None:
+    """Wait on cv (which guards what predicate reads) until predicate() holds. Raises TimeoutError naming
+    `what` after timeout_wall_s of wall time, Interrupted on shutdown."""
+    deadline = time.monotonic() + timeout_wall_s
+    with cv:
+        while not predicate():
+            if rospy.is_shutdown():
+                raise Interrupted(what)
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise TimeoutError(f"no {what} within {timeout_wall_s:.0f} s (wall)")
+            cv.wait(min(left, 0.1))
+
+
+class FrameGate:
+    """Depth frames (their camera_info, same stamp) held one at a time and acknowledged as `consumer`."""
+
+    def __init__(
+        self,
+        consumer: str,
+        lockstep: bool,
+        first_status_stamp: Callable[[], rospy.Time | None],
+        wall_wait_s: float = 30.0,
+    ) -> None:
+        """first_status_stamp(): the stamp of the simulator's first EpisodeStatus, None before it came."""
+        self.consumer = consumer
+        self.lockstep = lockstep
+        self.wall_wait_s = wall_wait_s
+        self._first_status_stamp = first_status_stamp
+        self._frames: queue.Queue[tuple[float, rospy.Time]] = queue.Queue()
+        self.held: rospy.Time | None = None  # the frame returned by next_frame and not acknowledged yet
+        self.startup_stamp: rospy.Time | None = None
+        self.startup_ack_s = 0.0
+        self.seen_frame = False
+        self.first_frame_s: float | None = None
+        self.last_frame_s = 0.0
+        self._last_ack: rospy.Time | None = None
+        # Only a consumer publishes acknowledgements: the simulator starts once it has as many FrameAck
+        # publishers as named consumers, so a publisher of a node that is none would let it start too early.
+        self.ack_pub = (
+            rospy.Publisher("/sim/frame_ack", FrameAck, queue_size=10, tcp_nodelay=True) if lockstep else None
+        )
+        self._sub = rospy.Subscriber(
+            "/camera/depth/camera_info", CameraInfo, self._on_frame, queue_size=100, tcp_nodelay=True
+        )
+
+    def _on_frame(self, msg: CameraInfo) -> None:
+        self._frames.put((msg.header.stamp.to_sec(), msg.header.stamp))
+
+    def fix_startup(self) -> bool:
+        """Fix the start-up acknowledgement from the simulator's first status (only from the first: a later,
+        periodic one has a later stamp, which would move the first held frame). False before that status."""
+        if self.startup_stamp is None:
+            stamp = self._first_status_stamp()
+            if stamp is None:
+                return False
+            self.startup_stamp = stamp + rospy.Duration(STARTUP_ACK_S)
+            self.startup_ack_s = self.startup_stamp.to_sec()
+        return True
+
+    def next_frame(self, after_s: float) -> tuple[float, rospy.Time]:
+        """The next frame stamped at or after after_s, held (older ones are acknowledged and skipped).
+        Without lockstep: the newest frame that has arrived."""
+        deadline = time.monotonic() + self.wall_wait_s
+        while True:
+            if rospy.is_shutdown():
+                raise Interrupted("waiting for a depth frame")
+            try:
+                t, stamp = self._frames.get(timeout=0.1)
+            except queue.Empty:
+                if time.monotonic() > deadline:
+                    raise TimeoutError(f"no depth frame within {self.wall_wait_s:.0f} s (wall)") from None
+                if self.lockstep and not self.seen_frame:
+                    self._startup_ack()
+                elif self.lockstep and self._last_ack is not None:
+                    # Repeating the last acknowledgement is harmless (they are cumulative) and recovers one
+                    # lost while the connection to the simulator was being set up.
+                    self._publish_ack(self._last_ack)
+                continue
+            self.seen_frame = True
+            self.last_frame_s = t
+            if self.first_frame_s is None:
+                self.first_frame_s = t
+            if t < after_s or t <= self.startup_ack_s:
+                self.ack(stamp)
+                continue
+            if not self.lockstep:  # not holding the simulator: only the newest frame matters
+                while not self._frames.empty():
+                    t, stamp = self._frames.get_nowait()
+                self.last_frame_s = t
+            self.held = stamp
+            return t, stamp
+
+    def _startup_ack(self) -> None:
+        # Only once the simulator can reach this node's frame subscription: an acknowledgement that lets it
+        # step on while that connection is still being set up would lose the frames this node must hold.
+        if self._sub.get_num_connections() == 0 or not self.fix_startup():
+            return
+        self._publish_ack(self.startup_stamp)
+
+    def _publish_ack(self, stamp: rospy.Time) -> None:
+        if self.ack_pub is not None:
+            self.ack_pub.publish(FrameAck(consumer=self.consumer, frame_seq=0, stamp=stamp))
+
+    def ack(self, stamp: rospy.Time | None = None) -> None:
+        """Acknowledge a frame (default: the held one), releasing the simulator up to it."""
+        stamp = stamp or self.held
+        if stamp is None:
+            return
+        if self.lockstep:
+            self._publish_ack(stamp)
+            if self._last_ack is None or stamp > self._last_ack:
+                self._last_ack = stamp
+        if stamp == self.held:
+            self.held = None
+
+
+class OdometryHistory:
+    """Recent odometry by stamp (position, speed), for decisions taken at a frame from the odometry at or
+    before it."""
+
+    def __init__(self, odom_period_s: float = 0.005, keep: int = 2000, wall_wait_s: float = 30.0) -> None:
+        self.odom_period_s = odom_period_s
+        self.wall_wait_s = wall_wait_s
+        self._keep = keep
+        self.cv = threading.Condition()
+        self._t: list[float] = []
+        self._v: list[tuple[tuple[float, float, float], float]] = []
+        rospy.Subscriber("/odom", Odometry, self._on_odom, queue_size=400, tcp_nodelay=True)
+
+    def _on_odom(self, msg: Odometry) -> None:
+        p, v = msg.pose.pose.position, msg.twist.twist.linear
+        with self.cv:
+            t = msg.header.stamp.to_sec()
+            if self._t and t < self._t[-1]:  # a new episode never goes back in time; be safe
+                self._t.clear()
+                self._v.clear()
+            self._t.append(t)
+            self._v.append(((p.x, p.y, p.z), math.hypot(v.x, v.y, v.z)))
+            if len(self._t) > self._keep:
+                del self._t[: self._keep // 2]
+                del self._v[: self._keep // 2]
+            self.cv.notify_all()
+
+    def at(self, t: float) -> tuple[tuple[float, float, float], float]:
+        """(position, speed) of the newest odometry stamped at or before t, waiting until the one within an
+        odometry period of t has arrived (in lockstep it was published before the frame at t)."""
+        eps = 1e-6
+        wait_until(
+            self.cv,
+            lambda: bool(self._t) and self._t[-1] > t - self.odom_period_s + eps,
+            f"odometry at t={t:.3f}",
+            self.wall_wait_s,
+        )
+        with self.cv:
+            i = bisect.bisect_right(self._t, t + eps) - 1
+            return self._v[max(i, 0)]
+
+
+class TrackerGoto:
+    """The tracker's goto service, called at a held frame so that the goto takes effect at the same step in
+    every run: the tracker applies a goto from the next odometry it processes, so the call waits until the
+    tracker has answered the odometry of the frame's control period (its SO3Command of that stamp)."""
+
+    def __init__(self, lockstep: bool, odom_period_s: float = 0.005, wall_wait_s: float = 30.0) -> None:
+        self.lockstep = lockstep
+        self.odom_period_s = odom_period_s
+        self.wall_wait_s = wall_wait_s
+        self.cv = threading.Condition()
+        self._cmd_t = 0.0  # stamp of the tracker's newest command
+        rospy.Subscriber("/so3_cmd", SO3Command, self._on_cmd, queue_size=100, tcp_nodelay=True)
+
+    def _on_cmd(self, msg: SO3Command) -> None:
+        with self.cv:
+            self._cmd_t = msg.header.stamp.to_sec()
+            self.cv.notify_all()
+
+    def __call__(self, position: tuple[float, float, float], yaw: float, at_s: float | None = None) -> str:
+        """'' if the tracker took the goto, else its reason. at_s: the held frame's stamp (lockstep)."""
+        if at_s is not None and self.lockstep:
+            eps = 1e-6
+            wait_until(
+                self.cv,
+                lambda: self._cmd_t > at_s - self.odom_period_s + eps,
+                f"tracker command of the control period at t={at_s:.3f}",
+                self.wall_wait_s,
+            )
+        goto = rospy.ServiceProxy("/tracker/goto", Goto)
+        r = goto(position=Point(*position), yaw=yaw, max_vel_mps=0.0, max_acc_mps2=0.0)
+        return "" if r.success else r.message
