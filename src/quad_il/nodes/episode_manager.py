@@ -28,9 +28,8 @@ import xmlrpc.client
 import rosnode
 import rospy
 import yaml
-from geometry_msgs.msg import Point, Pose, PoseStamped, Quaternion
+from geometry_msgs.msg import Point, Pose, Quaternion
 from rosgraph_msgs.msg import Clock
-from std_msgs.msg import String
 
 from quad_il.collection.episodes import (
     EpisodeLog,
@@ -39,8 +38,8 @@ from quad_il.collection.episodes import (
     manager_config,
     plan_episode,
 )
-from quad_il.lockstep import FrameGate, Interrupted, OdometryHistory, TrackerGoto, wait_until
-from quad_msgs.msg import EpisodeStatus, FrameAck, PlanTiming
+from quad_il.lockstep import ControllerGoal, FrameGate, Interrupted, OdometryHistory, TrackerGoto, wait_until
+from quad_msgs.msg import EpisodeStatus, PlanTiming
 from quad_msgs.srv import ResetEpisode
 
 GROUND_Z_M = 0.125  # the vehicle's collision box half height: the start rests on the ground
@@ -67,19 +66,15 @@ class EpisodeManager:
         self._lock = threading.Lock()
         self._cv = threading.Condition(self._lock)
         self._status: EpisodeStatus | None = None
-        self._first_status: rospy.Time | None = None
-        self._planner_ack = 0.0
-        self._planner_status: list[str] = []
         self._successes: list[float] = []  # stamps of successful plans (= records)
         self.odom = OdometryHistory(odom_period_s, wall_wait_s=WALL_WAIT_S)
         self.goto = TrackerGoto(self.lockstep, odom_period_s, WALL_WAIT_S)
         rospy.Subscriber("/sim/status", EpisodeStatus, self._on_status, queue_size=10)
         rospy.Subscriber("/planner/timing", PlanTiming, self._on_timing, queue_size=100)
-        rospy.Subscriber("/planner/status", String, self._on_planner_status, queue_size=100)
-        rospy.Subscriber("/sim/frame_ack", FrameAck, self._on_ack, queue_size=100, tcp_nodelay=True)
-        self.goal_pub = rospy.Publisher("/planner/goal", PoseStamped, queue_size=1, latch=True)
+        # The planner acknowledges frames and answers goals in either time mode: always waited for.
+        self.goal = ControllerGoal(self.planner_consumer, "/planner/status", True, WALL_WAIT_S)
         self.clock_pub = rospy.Publisher("/clock", Clock, queue_size=1) if self.lockstep else None
-        self.frames = FrameGate(self.consumer, self.lockstep, self._first_status_stamp, WALL_WAIT_S)
+        self.frames = FrameGate(self.consumer, self.lockstep, WALL_WAIT_S)
         rospy.loginfo("episode_manager: waiting for /sim/reset and /tracker/goto")
         rospy.wait_for_service("/sim/reset")
         rospy.wait_for_service("/tracker/goto")
@@ -90,29 +85,12 @@ class EpisodeManager:
     def _on_status(self, msg: EpisodeStatus) -> None:
         with self._cv:
             self._status = msg
-            if self._first_status is None:
-                self._first_status = msg.header.stamp
             self._cv.notify_all()
-
-    def _first_status_stamp(self) -> rospy.Time | None:
-        with self._lock:
-            return self._first_status
 
     def _on_timing(self, msg: PlanTiming) -> None:
         if msg.status.startswith("success"):
             with self._cv:
                 self._successes.append(msg.header.stamp.to_sec())
-
-    def _on_planner_status(self, msg: String) -> None:
-        with self._cv:
-            self._planner_status.append(msg.data)
-            self._cv.notify_all()
-
-    def _on_ack(self, msg: FrameAck) -> None:
-        if msg.consumer == self.planner_consumer:
-            with self._cv:
-                self._planner_ack = max(self._planner_ack, msg.stamp.to_sec())
-                self._cv.notify_all()
 
     # ---- helpers (main thread) ----
     def _wait(self, predicate, what: str, timeout_wall_s: float = WALL_WAIT_S) -> None:
@@ -181,7 +159,7 @@ class EpisodeManager:
             # The first hold: a fixed time into the simulator's initial episode, whether or not the start-up
             # acknowledgement was needed, so every run's episodes have the same stamps (floating-point time
             # arithmetic then gives bit-identical flights).
-            self._wait(lambda: self._first_status is not None, "simulator status")
+            wait_until(self.frames.cv, self.frames.has_status, "simulator status", WALL_WAIT_S)
             self.frames.fix_startup()
             self.frames.next_frame(0.0)
         if self.cfg.restart_tracker and self.lockstep:
@@ -225,29 +203,11 @@ class EpisodeManager:
             self.frames.ack()
         # The goal, at this frame once the planner has processed it; the frame is acknowledged once the
         # planner has taken (or rejected) the goal.
-        self._wait(lambda: self._planner_ack >= t - 1e-9, f"planner acknowledgement of frame {t:.3f}")
-        with self._lock:
-            n_status = len(self._planner_status)
-        goal = PoseStamped()
-        goal.header.stamp = rospy.Time.from_sec(t)
-        goal.header.frame_id = "world"
-        goal.pose.position = Point(*spec.goal_world)
-        goal.pose.orientation.w = 1.0
-        self.goal_pub.publish(goal)
-        answer: list[str] = []
-
-        def answered() -> bool:
-            for s in self._planner_status[n_status:]:
-                if s.startswith(("goal accepted", "goal rejected")):
-                    answer.append(s)
-                    return True
-            return False
-
-        self._wait(answered, "answer of the planner to the goal")
+        answer = self.goal.give(spec.goal_world, t)
         t_goal = t
         self.frames.ack()
-        if answer[0].startswith("goal rejected"):
-            return outcome("goal_rejected", answer[0], t_goal, t, 0)
+        if answer.startswith("goal rejected"):
+            return outcome("goal_rejected", answer, t_goal, t, 0)
         stop = StopCondition(self.cfg)
         while True:
             t, _ = self.frames.next_frame(t)

@@ -25,11 +25,12 @@ import time
 from collections.abc import Callable
 
 import rospy
-from geometry_msgs.msg import Point
+from geometry_msgs.msg import Point, PoseStamped
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import CameraInfo
+from std_msgs.msg import String
 
-from quad_msgs.msg import FrameAck, SO3Command
+from quad_msgs.msg import EpisodeStatus, FrameAck, SO3Command
 from quad_msgs.srv import Goto
 
 STARTUP_ACK_S = 0.2  # sim seconds after the simulator's first status acknowledged blindly at start-up
@@ -58,18 +59,12 @@ def wait_until(
 class FrameGate:
     """Depth frames (their camera_info, same stamp) held one at a time and acknowledged as `consumer`."""
 
-    def __init__(
-        self,
-        consumer: str,
-        lockstep: bool,
-        first_status_stamp: Callable[[], rospy.Time | None],
-        wall_wait_s: float = 30.0,
-    ) -> None:
-        """first_status_stamp(): the stamp of the simulator's first EpisodeStatus, None before it came."""
+    def __init__(self, consumer: str, lockstep: bool, wall_wait_s: float = 30.0) -> None:
         self.consumer = consumer
         self.lockstep = lockstep
         self.wall_wait_s = wall_wait_s
-        self._first_status_stamp = first_status_stamp
+        self.cv = threading.Condition()
+        self._first_status: rospy.Time | None = None  # stamp of the first EpisodeStatus received
         self._frames: queue.Queue[tuple[float, rospy.Time]] = queue.Queue()
         self.held: rospy.Time | None = None  # the frame returned by next_frame and not acknowledged yet
         self.startup_stamp: rospy.Time | None = None
@@ -83,9 +78,20 @@ class FrameGate:
         self.ack_pub = (
             rospy.Publisher("/sim/frame_ack", FrameAck, queue_size=10, tcp_nodelay=True) if lockstep else None
         )
+        rospy.Subscriber("/sim/status", EpisodeStatus, self._on_status, queue_size=10)
         self._sub = rospy.Subscriber(
             "/camera/depth/camera_info", CameraInfo, self._on_frame, queue_size=100, tcp_nodelay=True
         )
+
+    def _on_status(self, msg: EpisodeStatus) -> None:
+        with self.cv:
+            if self._first_status is None:
+                self._first_status = msg.header.stamp
+                self.cv.notify_all()
+
+    def has_status(self) -> bool:
+        """True once the simulator's first status has arrived (cv is notified then)."""
+        return self._first_status is not None
 
     def _on_frame(self, msg: CameraInfo) -> None:
         self._frames.put((msg.header.stamp.to_sec(), msg.header.stamp))
@@ -94,7 +100,8 @@ class FrameGate:
         """Fix the start-up acknowledgement from the simulator's first status (only from the first: a later,
         periodic one has a later stamp, which would move the first held frame). False before that status."""
         if self.startup_stamp is None:
-            stamp = self._first_status_stamp()
+            with self.cv:
+                stamp = self._first_status
             if stamp is None:
                 return False
             self.startup_stamp = stamp + rospy.Duration(STARTUP_ACK_S)
@@ -231,3 +238,65 @@ class TrackerGoto:
         goto = rospy.ServiceProxy("/tracker/goto", Goto)
         r = goto(position=Point(*position), yaw=yaw, max_vel_mps=0.0, max_acc_mps2=0.0)
         return "" if r.success else r.message
+
+
+class ControllerGoal:
+    """The goal of an episode, given to the controller (the expert planner or a policy node) at a held frame.
+    With `wait`: published once the controller has acknowledged that frame (so the goal counts from its next
+    frame on, in every run), and `give` returns once the controller has answered it on its status topic
+    ("goal accepted: ..." / "goal rejected: ..."), before the frame is released. Without: just published."""
+
+    def __init__(self, consumer: str, status_topic: str, wait: bool, wall_wait_s: float = 30.0) -> None:
+        self.consumer = consumer
+        self.wait = wait
+        self.wall_wait_s = wall_wait_s
+        self.cv = threading.Condition()
+        self._ack_s = 0.0
+        self._answers: list[str] = []
+        self.goal_pub = rospy.Publisher("/planner/goal", PoseStamped, queue_size=1, latch=True)
+        if wait:  # (a subscriber would count as connected for the nodes that wait for one)
+            rospy.Subscriber(status_topic, String, self._on_answer, queue_size=100)
+            rospy.Subscriber("/sim/frame_ack", FrameAck, self._on_ack, queue_size=200, tcp_nodelay=True)
+
+    def _on_answer(self, msg: String) -> None:
+        with self.cv:
+            self._answers.append(msg.data)
+            self.cv.notify_all()
+
+    def _on_ack(self, msg: FrameAck) -> None:
+        if msg.consumer == self.consumer:
+            with self.cv:
+                self._ack_s = max(self._ack_s, msg.stamp.to_sec())
+                self.cv.notify_all()
+
+    def give(self, goal_world: tuple[float, float, float], t: float) -> str:
+        """Publish the goal (stamped t) at the held frame t; returns the controller's answer ('' without
+        `wait`)."""
+        if self.wait:
+            wait_until(
+                self.cv,
+                lambda: self._ack_s >= t - 1e-9,
+                f"acknowledgement of frame {t:.3f} by {self.consumer}",
+                self.wall_wait_s,
+            )
+        with self.cv:
+            n_answers = len(self._answers)
+        goal = PoseStamped()
+        goal.header.stamp = rospy.Time.from_sec(t)
+        goal.header.frame_id = "world"
+        goal.pose.position = Point(*goal_world)
+        goal.pose.orientation.w = 1.0
+        self.goal_pub.publish(goal)
+        if not self.wait:
+            return ""
+        answer: list[str] = []
+
+        def answered() -> bool:
+            for a in self._answers[n_answers:]:
+                if a.startswith(("goal accepted", "goal rejected")):
+                    answer.append(a)
+                    return True
+            return False
+
+        wait_until(self.cv, answered, f"answer of {self.consumer} to the goal", self.wall_wait_s)
+        return answer[0]

@@ -26,16 +26,15 @@ from collections.abc import Callable
 
 import numpy as np
 import rospy
-from geometry_msgs.msg import Point, Pose, PoseStamped, Quaternion
+from geometry_msgs.msg import Point, Pose, Quaternion
 from nav_msgs.msg import Odometry
-from std_msgs.msg import String
 from visualization_msgs.msg import MarkerArray
 
 from quad_il.collection.episodes import EpisodeSpec
 from quad_il.evaluation.episodes import GROUND_Z_M, EpisodeResult, append_result, read_episodes
 from quad_il.evaluation.metrics import Box, clearance_lower_bound, path_length
-from quad_il.lockstep import FrameGate, Interrupted, OdometryHistory, TrackerGoto, wait_until
-from quad_msgs.msg import EpisodeStatus, FrameAck, PlanTiming, PolicyDecision
+from quad_il.lockstep import ControllerGoal, FrameGate, Interrupted, OdometryHistory, TrackerGoto, wait_until
+from quad_msgs.msg import EpisodeStatus, PlanTiming, PolicyDecision
 from quad_msgs.srv import ResetEpisode
 
 # Where each controller answers a goal ("goal accepted: ..." / "goal rejected: ...").
@@ -72,11 +71,8 @@ class EpisodeRunner:
         self._lock = threading.Lock()
         self._cv = threading.Condition(self._lock)
         self._status: EpisodeStatus | None = None
-        self._first_status: rospy.Time | None = None
         self._boxes: list[Box] = []
         self._markers_seen = 0
-        self._controller_ack = 0.0
-        self._answers: list[str] = []
         self._points: list[tuple[float, float, float, float]] = []
         self._decisions: list[PolicyDecision] = []
         self._timings: list[PlanTiming] = []
@@ -85,13 +81,10 @@ class EpisodeRunner:
         rospy.Subscriber("/sim/world_markers", MarkerArray, self._on_markers, queue_size=2)
         rospy.Subscriber("/policy/decision", PolicyDecision, self._on_decision, queue_size=200)
         rospy.Subscriber("/planner/timing", PlanTiming, self._on_timing, queue_size=200)
-        rospy.Subscriber(STATUS_TOPIC[controller], String, self._on_answer, queue_size=100)
-        if self.lockstep:  # (a subscriber would count as connected for the nodes that wait for one)
-            rospy.Subscriber("/sim/frame_ack", FrameAck, self._on_ack, queue_size=200, tcp_nodelay=True)
-        self.goal_pub = rospy.Publisher("/planner/goal", PoseStamped, queue_size=1, latch=True)
+        self.goal = ControllerGoal(controller_consumer, STATUS_TOPIC[controller], self.lockstep, WALL_WAIT_S)
         self.odom = OdometryHistory(wall_wait_s=WALL_WAIT_S)
         self.goto = TrackerGoto(self.lockstep, wall_wait_s=WALL_WAIT_S)
-        self.frames = FrameGate(consumer or "", self.lockstep, self._first_status_stamp, WALL_WAIT_S)
+        self.frames = FrameGate(consumer or "", self.lockstep, WALL_WAIT_S)
         rospy.wait_for_service("/sim/reset", timeout=60.0)
         rospy.wait_for_service("/tracker/goto", timeout=60.0)
         self.reset_srv = rospy.ServiceProxy("/sim/reset", ResetEpisode)
@@ -100,13 +93,7 @@ class EpisodeRunner:
     def _on_status(self, msg: EpisodeStatus) -> None:
         with self._cv:
             self._status = msg
-            if self._first_status is None:
-                self._first_status = msg.header.stamp
             self._cv.notify_all()
-
-    def _first_status_stamp(self) -> rospy.Time | None:
-        with self._lock:
-            return self._first_status
 
     def _on_odom(self, msg: Odometry) -> None:
         p = msg.pose.pose.position
@@ -139,52 +126,12 @@ class EpisodeRunner:
         with self._lock:
             self._timings.append(msg)
 
-    def _on_answer(self, msg: String) -> None:
-        with self._cv:
-            self._answers.append(msg.data)
-            self._cv.notify_all()
-
-    def _on_ack(self, msg: FrameAck) -> None:
-        if msg.consumer == self.controller_consumer:
-            with self._cv:
-                self._controller_ack = max(self._controller_ack, msg.stamp.to_sec())
-                self._cv.notify_all()
-
     # ---- helpers ----
     def _wait(self, predicate: Callable[[], bool], what: str, timeout_wall_s: float = WALL_WAIT_S) -> None:
         wait_until(self._cv, predicate, what, timeout_wall_s)
 
     def _result(self, spec: EpisodeSpec, outcome: str, reason: str) -> EpisodeResult:
         return EpisodeResult(self.controller, spec.index, spec.seed, outcome, reason)
-
-    def _publish_goal(self, spec: EpisodeSpec, t: float) -> str:
-        """Publish the goal at the held frame t; in lockstep first wait until the controller has decided
-        frame t (so the goal counts from the next frame on), and then for its answer. Returns the answer."""
-        if self.lockstep:
-            self._wait(
-                lambda: self._controller_ack >= t - 1e-9, f"controller acknowledgement of frame {t:.3f}"
-            )
-        with self._lock:
-            n_answers = len(self._answers)
-        goal = PoseStamped()
-        goal.header.stamp = rospy.Time.from_sec(t)
-        goal.header.frame_id = "world"
-        goal.pose.position = Point(*spec.goal_world)
-        goal.pose.orientation.w = 1.0
-        self.goal_pub.publish(goal)
-        if not self.lockstep:
-            return ""
-        answer: list[str] = []
-
-        def answered() -> bool:
-            for a in self._answers[n_answers:]:
-                if a.startswith(("goal accepted", "goal rejected")):
-                    answer.append(a)
-                    return True
-            return False
-
-        self._wait(answered, f"answer of the {self.controller} controller to the goal")
-        return answer[0]
 
     # ---- one episode ----
     def run(self, spec: EpisodeSpec, reset: bool = True) -> EpisodeResult:
@@ -248,7 +195,9 @@ class EpisodeRunner:
                     f"take-off to {[round(v, 2) for v in (sx, sy, sz)]} did not settle",
                 )
             self.frames.ack()
-        answer = self._publish_goal(spec, t)
+        # The goal at this frame once the controller has decided it; the frame is released once the controller
+        # has answered the goal (lockstep).
+        answer = self.goal.give(spec.goal_world, t)
         t0 = t
         self.frames.ack()
         if answer.startswith("goal rejected"):
