@@ -156,11 +156,9 @@ class EpisodeManager:
 
         # Hold the simulator (lockstep) at a frame of the previous episode while the tracker restarts.
         if self.frames.held is None:
-            # The first hold: a fixed time into the simulator's initial episode, whether or not the start-up
-            # acknowledgement was needed, so every run's episodes have the same stamps (floating-point time
-            # arithmetic then gives bit-identical flights).
-            wait_until(self.frames.cv, self.frames.has_status, "simulator status", WALL_WAIT_S)
-            self.frames.fix_startup()
+            # The first hold: a fixed time into the simulator's initial episode (FrameGate's start-up
+            # acknowledgement), whether or not that was needed, so every run's episodes have the same stamps
+            # (floating-point time arithmetic then gives bit-identical flights).
             self.frames.next_frame(0.0)
         if self.cfg.restart_tracker and self.lockstep:
             self._wait_tracker(self._kill_tracker())

@@ -8,11 +8,12 @@ the node acts on it and releases it with `ack`. What the node does at a frame th
 sim time in every run, whatever the machine's load. Without lockstep (a free-running simulator) the same calls
 just return the newest frame and acknowledge nothing.
 
-Start-up: the simulator starts stepping once one depth consumer has connected, so its first frames may go out
-before this node's subscription is connected; it then waits for an acknowledgement of a frame this node never
-got. Acknowledgements are cumulative: the node acknowledges blindly the first STARTUP_ACK_S of sim time after
-the simulator's first status (it takes no decision there), once its own frame subscription is connected; the
-first frame it holds comes after that.
+Start-up: the simulator starts stepping once every consumer's FrameAck publisher and one depth subscriber are
+connected, not this node's frame subscription (camera_info), so its first frames may go out before that is
+connected; it then waits for an acknowledgement of a frame this node never got. Acknowledgements are
+cumulative: the node acknowledges blindly the first STARTUP_ACK_S of sim time after the simulator's first
+status (it takes no decision there), once its own frame subscription is connected; the first frame it holds
+comes after that, in every run.
 """
 
 from __future__ import annotations
@@ -111,6 +112,11 @@ class FrameGate:
     def next_frame(self, after_s: float) -> tuple[float, rospy.Time]:
         """The next frame stamped at or after after_s, held (older ones are acknowledged and skipped).
         Without lockstep: the newest frame that has arrived."""
+        if self.lockstep and self.startup_stamp is None:
+            # The first hold comes after the start-up acknowledgement's stamp, whether or not this node got
+            # the simulator's first frames: the same frame in every run.
+            wait_until(self.cv, self.has_status, "simulator status", self.wall_wait_s)
+            self.fix_startup()
         deadline = time.monotonic() + self.wall_wait_s
         while True:
             if rospy.is_shutdown():

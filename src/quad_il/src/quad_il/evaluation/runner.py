@@ -168,9 +168,6 @@ class EpisodeRunner:
         with self._lock:
             episode_id = self._status.episode_id
             t_episode = self._status.header.stamp.to_sec()
-        # The first hold comes after the start-up acknowledgement's stamp whether or not this node got the
-        # simulator's first frames (quad_il.lockstep): the same frame in every run.
-        self.frames.fix_startup()
         # Take-off at the first frame of the episode that the tracker takes the goto at.
         t, _ = self.frames.next_frame(t_episode)
         why = ""
