@@ -203,3 +203,22 @@ def test_bad_policy_and_policy_config_paths_are_named(
     assert "--policy must name an exported policy file" in capsys.readouterr().err
     assert main([*base, "--policy", str(policy), "--policy-config", str(tmp_path / "nope.yaml")]) == 1
     assert f"--policy-config: no such file '{tmp_path / 'nope.yaml'}'" in capsys.readouterr().err
+
+
+def test_a_lockstep_runner_without_the_controllers_consumer_name_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from quad_il.evaluation.runner import main
+
+    args = [
+        "runner",
+        "--episodes",
+        str(tmp_path / "e.json"),
+        "--controller",
+        "cpp",
+        "--out",
+        str(tmp_path / "o"),
+    ]
+    assert main([*args, "--lockstep-consumer", "eval_runner"]) == 2
+    assert "--lockstep-consumer needs --controller-consumer" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()

@@ -312,6 +312,9 @@ def main(argv: list[str] | None = None) -> int:
         help="one episode, the one the simulator runs since its start (its config holds seed, start, goal)",
     )
     args = ap.parse_args(rospy.myargv(argv if argv is not None else sys.argv)[1:])
+    if args.lockstep_consumer and not args.controller_consumer:
+        print("[eval] --lockstep-consumer needs --controller-consumer", file=sys.stderr)
+        return 2
     # rospy reads /use_sim_time once, in init_node: wait until the launch file has set it (the runner may
     # start before roslaunch has set its parameters), or every wait below would run on the wall clock.
     if not wait_for_param("/use_sim_time", 60.0):
@@ -319,9 +322,6 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     rospy.init_node(f"eval_runner_{args.controller}", disable_signals=False)
     box = tuple(float(x) for x in args.vehicle_box_m.split(","))
-    if args.lockstep_consumer and not args.controller_consumer:
-        print("[eval] --lockstep-consumer needs --controller-consumer", file=sys.stderr)
-        return 1
     runner = EpisodeRunner(
         args.controller,
         args.episode_timeout_s,
