@@ -100,9 +100,8 @@ class PolicyNode:
         self.tracker_rejections = 0
         self.last_rejection = ""
         self.action_cv = threading.Condition(self.action_lock)
-        self.sent: actionlib.ClientGoalHandle | None = (
-            None  # this frame's trajectory until the tracker answers
-        )
+        # This frame's trajectory until the tracker answers it (depth thread only).
+        self.sent: actionlib.ClientGoalHandle | None = None
         self.sent_traj_id = 0
         self.tracker_accept_timeouts = 0
 
