@@ -172,10 +172,12 @@ class FrameGate:
 
 
 class OdometryHistory:
-    """Recent odometry by stamp (position, speed), for decisions taken at a frame from the odometry at or
-    before it."""
+    """Odometry by stamp (position, speed), for decisions taken at a frame from the odometry at or before it.
+    Keeps the newest `keep` messages (None: all since the last `clear`, e.g. a whole episode's path)."""
 
-    def __init__(self, odom_period_s: float = 0.005, keep: int = 2000, wall_wait_s: float = 30.0) -> None:
+    def __init__(
+        self, odom_period_s: float = 0.005, keep: int | None = 2000, wall_wait_s: float = 30.0
+    ) -> None:
         self.odom_period_s = odom_period_s
         self.wall_wait_s = wall_wait_s
         self._keep = keep
@@ -193,7 +195,7 @@ class OdometryHistory:
                 self._v.clear()
             self._t.append(t)
             self._v.append(((p.x, p.y, p.z), math.hypot(v.x, v.y, v.z)))
-            if len(self._t) > self._keep:
+            if self._keep is not None and len(self._t) > self._keep:
                 del self._t[: self._keep // 2]
                 del self._v[: self._keep // 2]
             self.cv.notify_all()
@@ -211,6 +213,18 @@ class OdometryHistory:
         with self.cv:
             i = bisect.bisect_right(self._t, t + eps) - 1
             return self._v[max(i, 0)]
+
+    def positions(self, t0: float, t1: float) -> list[tuple[float, float, float, float]]:
+        """(stamp, x, y, z) of every message kept stamped in [t0, t1]."""
+        eps = 1e-6
+        with self.cv:
+            i, j = bisect.bisect_left(self._t, t0 - eps), bisect.bisect_right(self._t, t1 + eps)
+            return [(t, *v[0]) for t, v in zip(self._t[i:j], self._v[i:j], strict=True)]
+
+    def clear(self) -> None:
+        with self.cv:
+            self._t.clear()
+            self._v.clear()
 
 
 class TrackerGoto:

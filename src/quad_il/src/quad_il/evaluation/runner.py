@@ -27,7 +27,6 @@ from collections.abc import Callable
 import numpy as np
 import rospy
 from geometry_msgs.msg import Point, Pose, Quaternion
-from nav_msgs.msg import Odometry
 from visualization_msgs.msg import MarkerArray
 
 from quad_il.collection.episodes import EpisodeSpec
@@ -73,16 +72,15 @@ class EpisodeRunner:
         self._status: EpisodeStatus | None = None
         self._boxes: list[Box] = []
         self._markers_seen = 0
-        self._points: list[tuple[float, float, float, float]] = []
         self._decisions: list[PolicyDecision] = []
         self._timings: list[PlanTiming] = []
         rospy.Subscriber("/sim/status", EpisodeStatus, self._on_status, queue_size=10)
-        rospy.Subscriber("/odom", Odometry, self._on_odom, queue_size=400, tcp_nodelay=True)
         rospy.Subscriber("/sim/world_markers", MarkerArray, self._on_markers, queue_size=2)
         rospy.Subscriber("/policy/decision", PolicyDecision, self._on_decision, queue_size=200)
         rospy.Subscriber("/planner/timing", PlanTiming, self._on_timing, queue_size=200)
         self.goal = ControllerGoal(controller_consumer, STATUS_TOPIC[controller], self.lockstep, WALL_WAIT_S)
-        self.odom = OdometryHistory(wall_wait_s=WALL_WAIT_S)
+        # The whole episode's odometry: the take-off check and the recorded path.
+        self.odom = OdometryHistory(keep=None, wall_wait_s=WALL_WAIT_S)
         self.goto = TrackerGoto(self.lockstep, wall_wait_s=WALL_WAIT_S)
         self.frames = FrameGate(consumer or "", self.lockstep, WALL_WAIT_S)
         rospy.wait_for_service("/sim/reset", timeout=60.0)
@@ -94,11 +92,6 @@ class EpisodeRunner:
         with self._cv:
             self._status = msg
             self._cv.notify_all()
-
-    def _on_odom(self, msg: Odometry) -> None:
-        p = msg.pose.pose.position
-        with self._lock:
-            self._points.append((msg.header.stamp.to_sec(), p.x, p.y, p.z))
 
     def _on_markers(self, msg: MarkerArray) -> None:
         boxes = [
@@ -141,7 +134,8 @@ class EpisodeRunner:
         sx, sy, sz = spec.start_world
         yaw = spec.start_yaw_rad
         with self._lock:
-            self._points, self._decisions, self._timings = [], [], []
+            self._decisions, self._timings = [], []
+        self.odom.clear()
         if reset:
             start = Pose(
                 position=Point(sx, sy, GROUND_Z_M),
@@ -241,10 +235,8 @@ class EpisodeRunner:
     def _finish(self, spec: EpisodeSpec, outcome: str, reason: str, t0: float, t_end: float) -> EpisodeResult:
         """The episode's result from what was recorded between the goal (t0) and the end (t_end), sim time."""
         eps = 1e-6
+        points = np.asarray(self.odom.positions(t0, t_end), dtype=np.float64).reshape(-1, 4)
         with self._lock:
-            points = np.asarray(
-                [q for q in self._points if t0 - eps <= q[0] <= t_end + eps], dtype=np.float64
-            ).reshape(-1, 4)
             decisions = [d for d in self._decisions if t0 - eps <= d.header.stamp.to_sec() <= t_end + eps]
             timings = [m for m in self._timings if t0 - eps <= m.header.stamp.to_sec() <= t_end + eps]
             boxes = list(self._boxes)
