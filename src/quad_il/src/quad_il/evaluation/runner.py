@@ -235,6 +235,7 @@ class EpisodeRunner:
     def _finish(self, spec: EpisodeSpec, outcome: str, reason: str, t0: float, t_end: float) -> EpisodeResult:
         """The episode's result from what was recorded between the goal (t0) and the end (t_end), sim time."""
         eps = 1e-6
+        self.odom.at(t_end)  # the path up to the end has arrived (odometry travels on its own topic)
         points = np.asarray(self.odom.positions(t0, t_end), dtype=np.float64).reshape(-1, 4)
         with self._lock:
             decisions = [d for d in self._decisions if t0 - eps <= d.header.stamp.to_sec() <= t_end + eps]
