@@ -22,14 +22,19 @@ from quad_il.inference.config import (
     config_from_tree,
     load_policy_config,
 )
-from quad_il.inference.decider import DecisionInputs, PolicyDecider, turned_goal
+from quad_il.inference.decider import DecisionInputs, PolicyDecider, turned_goal, yaw_of
 from quad_il.inference.fixture import DecisionFixture, FixtureError, read_fixture, write_fixture
 from quad_il.inference.meta import PolicyFormatError, parse_policy_meta
 from quad_il.inference.policy import LoadedPolicy
 from quad_il.inference.preprocessing import PolicyPreprocessing, as_row
 from quad_il.inference.random_policy import export_random_policy
-from quad_il.inference.safety import CameraModel, SafetyVerdict, trajectory_in_view
-from quad_il.inference.trajectory import UniformBspline, braking_trajectory
+from quad_il.inference.safety import CameraModel, SafetyVerdict, nearest_depth, trajectory_in_view
+from quad_il.inference.trajectory import (
+    UniformBspline,
+    braking_trajectory,
+    turning_stop,
+    with_constant_yaw_rate,
+)
 from quad_il.learning.config import ModelConfig
 from quad_il.learning.export import META_FILE, load_exported
 
@@ -289,6 +294,22 @@ class _GoalLine(LoadedPolicy):
             return self.module.encode_target(ctrl, p, q).reshape(1, -1)
 
 
+def _recovery(
+    turns: list[float] | None = None,
+    steer: float = 0.0,
+    turn_after: int = 0,
+    turn_rate: float = 45.0,
+    turn_clearance: float = 0.0,
+) -> RecoveryConfig:
+    return RecoveryConfig(
+        goal_yaw_offsets_deg=turns or [],
+        steer_clearance_m=steer,
+        turn_after_stops=turn_after,
+        turn_rate_dps=turn_rate,
+        turn_clearance_m=turn_clearance,
+    )
+
+
 def _wall_ahead() -> np.ndarray:
     """_camera()'s view from the origin along +x: a wall 1.2 m ahead in the middle columns, free elsewhere."""
     depth = np.full((50, 70), np.inf, np.float32)
@@ -336,7 +357,7 @@ def test_the_recovery_turns_the_goal_until_a_plan_is_accepted_and_in_view(polici
     assert off.recovery is None and off.recovery_tries == 0 and off.to_send() is off.stop
 
     # 60 deg: clear of the wall but out of the image (refused by the view test); 30 deg: accepted.
-    on = RecoveryConfig(goal_yaw_offsets_deg=[60.0, 30.0, -30.0], steer_clearance_m=0.0)
+    on = _recovery([60.0, 30.0, -30.0])
     decider = PolicyDecider(policy, cfg.safety, cfg.refusal, on)
     d = decider.decide(inp)
     assert d.safety.verdict == SafetyVerdict.COLLISION_IN_DEPTH  # the verdict is the policy's own plan's
@@ -347,7 +368,7 @@ def test_the_recovery_turns_the_goal_until_a_plan_is_accepted_and_in_view(polici
     assert decider.counts.counts[SafetyVerdict.COLLISION_IN_DEPTH] == 1
 
     # Only turns that stay blocked or leave the view: no recovery, the stopping trajectory as before.
-    only_bad = RecoveryConfig(goal_yaw_offsets_deg=[60.0, 10.0], steer_clearance_m=0.0)
+    only_bad = _recovery([60.0, 10.0])
     none = PolicyDecider(policy, cfg.safety, cfg.refusal, only_bad)
     d = none.decide(inp)
     assert d.recovery is None and d.recovery_tries == 2 and d.to_send() is d.stop
@@ -376,13 +397,11 @@ def test_steering_turns_away_from_a_wall_that_an_accepted_plan_comes_near(polici
     inp = DecisionInputs(2.0, depth, _camera(), np.zeros(3), np.zeros(3), q, np.array([10.0, 0, 0]))
 
     turns = [60.0, 10.0, 30.0, -30.0]
-    plain = PolicyDecider(
-        policy, cfg.safety, cfg.refusal, RecoveryConfig(goal_yaw_offsets_deg=turns, steer_clearance_m=0.0)
-    )
+    plain = PolicyDecider(policy, cfg.safety, cfg.refusal, _recovery(turns))
     d = plain.decide(inp)
     assert d.accepted and d.recovery_tries == 0 and d.to_send() is d.proposed  # steering off: no search
 
-    steer = RecoveryConfig(goal_yaw_offsets_deg=turns, steer_clearance_m=0.9)
+    steer = _recovery(turns, steer=0.9)
     decider = PolicyDecider(policy, cfg.safety, cfg.refusal, steer)
     d = decider.decide(inp)
     # 60 deg leaves the image, 10 deg still passes within 0.9 m of the wall, 30 deg keeps 0.9 m.
@@ -396,7 +415,7 @@ def test_steering_turns_away_from_a_wall_that_an_accepted_plan_comes_near(polici
         policy,
         cfg.safety,
         cfg.refusal,
-        RecoveryConfig(goal_yaw_offsets_deg=[60.0, 10.0], steer_clearance_m=0.9),
+        _recovery([60.0, 10.0], steer=0.9),
     ).decide(inp)
     assert d.accepted and not d.steered and d.recovery is None and d.recovery_tries == 2
     assert d.to_send() is d.proposed
@@ -454,4 +473,142 @@ def test_recovery_config_errors_name_the_key(tmp_path: Path, angles: str, messag
     bad = tmp_path / "policy.yaml"
     bad.write_text(CONFIG.read_text().replace("goal_yaw_offsets_deg: []", f"goal_yaw_offsets_deg: {angles}"))
     with pytest.raises(PolicyConfigError, match=rf"recovery\.goal_yaw_offsets_deg[\s\S]*{message}"):
+        load_policy_config(bad)
+
+
+def _heading(traj: UniformBspline, t: np.ndarray) -> np.ndarray:
+    """The heading of a trajectory at times t, evaluated with the same basis as its positions."""
+    assert traj.yaw_ctrl is not None
+    yaw = np.zeros_like(traj.ctrl_world)
+    yaw[:, 0] = traj.yaw_ctrl
+    return UniformBspline(traj.start_time_s, traj.knot_dt_s, yaw).position(t)[:, 0]
+
+
+def test_constant_yaw_rate_is_exactly_linear_and_keeps_the_positions() -> None:
+    stop = braking_trajectory(np.array([1.0, 2, 3]), np.array([1.0, 0, 0]), 3.0, 0.5, 5.0)
+    assert stop.yaw_ctrl is None  # no heading unless one is set
+    turning = with_constant_yaw_rate(stop, 3.0, -0.8)
+    np.testing.assert_array_equal(turning.ctrl_world, stop.ctrl_world)
+    t = np.linspace(0.0, stop.duration_s, 17)
+    np.testing.assert_allclose(_heading(turning, t), 3.0 - 0.8 * t, rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match="non-finite yaw or rate"):
+        with_constant_yaw_rate(stop, 0.0, float("nan"))
+    # The turning stop without a back-off: the same motion, with the heading.
+    same = turning_stop(np.array([1.0, 2, 3]), np.array([1.0, 0, 0]), np.zeros(3), 3.0, -0.8, 3.0, 0.5, 5.0)
+    np.testing.assert_allclose(same.ctrl_world, stop.ctrl_world, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(same.yaw_ctrl, turning.yaw_ctrl, rtol=0, atol=1e-12)
+    # The heading of a quaternion (x, y, z, w), also when it is not normalised.
+    a = 2.5
+    assert yaw_of(np.array([0.0, 0.0, np.sin(a / 2), np.cos(a / 2)])) == pytest.approx(a, abs=1e-12)
+    assert yaw_of(3.0 * np.array([0.0, 0.0, np.sin(-a / 2), np.cos(-a / 2)])) == pytest.approx(-a, abs=1e-12)
+
+
+def test_turning_in_place_starts_after_n_stops_towards_the_goal_and_ends_with_a_plan(policies) -> None:
+    cfg = load_policy_config(CONFIG)
+    assert cfg.recovery.turn_after_stops == 0  # off by default
+    policy = _GoalLine(policies["world"].path)
+    q = np.array([0.0, 0.0, 0.0, 1.0])
+    right = DecisionInputs(
+        2.0, _wall_ahead(), _camera(), np.zeros(3), np.zeros(3), q, np.array([10.0, -2, 0])
+    )
+    left = dataclasses.replace(right, goal_world=np.array([10.0, 2, 0]))
+    free = dataclasses.replace(right, depth_m=np.full((50, 70), np.inf, np.float32))
+    decider = PolicyDecider(policy, cfg.safety, cfg.refusal, _recovery(turn_after=3, turn_rate=45.0))
+
+    # Two stops as before, then the third turns towards the goal's side (right: negative) at 45 deg/s.
+    for _ in range(2):
+        d = decider.decide(right)
+        assert d.to_send() is d.stop and d.turn_rate_radps == 0.0 and d.stop.yaw_ctrl is None
+    d = decider.decide(right)
+    assert d.to_send() is d.stop and d.turn_rate_radps == pytest.approx(-np.pi / 4)
+    t = np.linspace(0.0, d.stop.duration_s, 9)
+    np.testing.assert_allclose(_heading(d.stop, t), -np.pi / 4 * t, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(d.stop.position(t), 0.0, atol=1e-12)  # at rest: it turns on the spot
+    # The direction is kept while the stops go on, even when the goal is now on the left.
+    assert decider.decide(left).turn_rate_radps == pytest.approx(-np.pi / 4)
+    # A plan ends the turning; the count starts again, and the next turning goes to the goal's side.
+    d = decider.decide(free)
+    assert d.accepted and d.to_send() is d.proposed and d.turn_rate_radps == 0.0
+    assert [decider.decide(left).turn_rate_radps for _ in range(3)] == [0.0, 0.0, pytest.approx(np.pi / 4)]
+    decider.reset()  # a new episode
+    assert decider.decide(left).turn_rate_radps == 0.0
+    # A recovered plan ends the stops as an accepted one does.
+    both = PolicyDecider(policy, cfg.safety, cfg.refusal, _recovery([40.0], turn_after=1))
+    assert both.decide(right).recovery is not None and both.stops_in_row == 0
+    with pytest.raises(ValueError, match="turn_after_stops is set but refusal.action is not 'stop'"):
+        PolicyDecider(
+            policy, cfg.safety, cfg.refusal.model_copy(update={"action": "hover"}), _recovery(turn_after=3)
+        )
+
+
+def test_the_turning_stop_backs_off_within_the_deceleration_limit_and_ends_at_rest() -> None:
+    p0, v0, b = np.array([1.0, 2, 3]), np.array([0.6, -0.3, 0.0]), np.array([-0.5, 0.2, 0.0])
+    s = turning_stop(p0, v0, b, 0.2, 0.5, 3.0, 0.5, 7.0)
+    T = s.knot_dt_s
+    assert T == pytest.approx(np.sqrt(6 * np.linalg.norm(b) / 3.0))  # the back-off sets the duration here
+    np.testing.assert_allclose(s.position(0.0)[0], p0, atol=1e-12)
+    np.testing.assert_allclose(s.velocity(0.0)[0], v0, atol=1e-12)
+    np.testing.assert_allclose(s.position(T)[0], p0 + v0 * T / 3 + b, atol=1e-12)
+    np.testing.assert_allclose(s.velocity(T)[0], 0.0, atol=1e-12)
+    # The back-off alone (no start velocity) accelerates at most max_decel, at its ends.
+    only = turning_stop(p0, np.zeros(3), b, 0.0, 0.5, 3.0, 0.5, 7.0)
+    acc = np.linalg.norm(only.acceleration(np.linspace(0, T, 41)), axis=1)
+    assert acc.max() == pytest.approx(3.0, rel=1e-9) and acc[0] == pytest.approx(3.0, rel=1e-9)
+    np.testing.assert_allclose(_heading(s, np.array([0.0, T])), [0.2, 0.2 + 0.5 * T], atol=1e-12)
+    with pytest.raises(ValueError, match="non-finite back-off"):
+        turning_stop(p0, v0, np.array([np.nan, 0, 0]), 0.0, 0.5, 3.0, 0.5, 7.0)
+
+
+def test_nearest_depth_treats_the_rep118_specials_as_the_safety_layer_does() -> None:
+    d = np.full((4, 5), np.inf, np.float32)
+    assert nearest_depth(d) == np.inf  # nothing seen
+    d[1, 2], d[3, 3], d[0, 0] = 2.5, 1.75, np.nan
+    assert nearest_depth(d) == 1.75
+    d[2, 4] = -np.inf  # too near: 0
+    assert nearest_depth(d) == 0.0
+
+
+def test_turning_backs_away_from_a_surface_nearer_than_the_clearance(policies) -> None:
+    cfg = load_policy_config(CONFIG)
+    policy = _GoalLine(policies["world"].path)
+    yaw = 0.3
+    q = np.array([0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2)])
+    p0 = np.zeros(3)
+    # The wall is 1.2 m ahead of _camera() (at the origin, looking along +x), which the depth test uses: the
+    # plan at the goal is refused whatever the vehicle's heading, which sets the back-off's direction.
+    inp = DecisionInputs(2.0, _wall_ahead(), _camera(), p0, np.zeros(3), q, p0 + np.array([10.0, 0, 0]))
+    decider = PolicyDecider(policy, cfg.safety, cfg.refusal, _recovery(turn_after=1, turn_clearance=2.0))
+    d = decider.decide(inp)
+    assert d.turn_backoff_m == pytest.approx(0.8)
+    heading = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+    np.testing.assert_allclose(d.stop.position(d.stop.duration_s)[0], p0 - 0.8 * heading, atol=1e-12)
+    # A surface beyond the clearance: no back-off, the vehicle turns where it is.
+    far = PolicyDecider(policy, cfg.safety, cfg.refusal, _recovery(turn_after=1, turn_clearance=1.0))
+    d = far.decide(inp)
+    assert d.turn_rate_radps != 0.0 and d.turn_backoff_m == 0.0
+    np.testing.assert_allclose(d.stop.position(d.stop.duration_s)[0], p0, atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("after", "rate", "action", "message"),
+    [
+        ("-1", "45.0", "stop", r"recovery\.turn_after_stops[\s\S]*greater than or equal to 0"),
+        ("15", "0.0", "stop", r"recovery\.turn_rate_dps[\s\S]*greater than 0"),
+        ("15", "200.0", "stop", r"recovery\.turn_rate_dps[\s\S]*less than or equal to 180"),
+        ("15", "45.0", "hover", "turn_after_stops is set but refusal.action is not 'stop'"),
+        ("15", "45.0", "stop -1", r"recovery\.turn_clearance_m[\s\S]*greater than or equal to 0"),
+    ],
+)
+def test_turning_config_errors_name_the_key(
+    tmp_path: Path, after: str, rate: str, action: str, message: str
+) -> None:
+    bad = tmp_path / "policy.yaml"
+    bad.write_text(
+        CONFIG.read_text()
+        .replace("turn_after_stops: 0", f"turn_after_stops: {after}")
+        .replace("turn_rate_dps: 45.0", f"turn_rate_dps: {rate}")
+        .replace("action: stop", f"action: {action.split()[0]}")
+        .replace("turn_clearance_m: 0.8", f"turn_clearance_m: {action.split()[-1] if ' ' in action else 0.8}")
+    )
+    with pytest.raises(PolicyConfigError, match=message):
         load_policy_config(bad)

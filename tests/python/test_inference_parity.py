@@ -310,3 +310,76 @@ def test_recovery_and_steering_succeed_alike_with_a_goal_seeking_policy(tmp_path
         np.testing.assert_allclose(cpp["recovery_ctrl"][i], py[i].recovery.ctrl_world, rtol=0, atol=TOL)
         heading = py[i].recovery.position(np.array([1.0]))[0] - fx.p_world_body[i]
         assert np.degrees(np.arctan2(heading[1], heading[0])) == pytest.approx(20.0, abs=1e-3)
+
+
+def test_turning_in_place_turns_alike_in_both_deciders(tmp_path: Path) -> None:
+    """Turning in place depends on the decisions before (the stops in a row): both deciders, given the same
+    frames in order, must turn on the same frames, the same way, with the same heading.
+
+    Frames: a wall 1.2 m ahead with the goal a little to the right (four stops: the third and fourth turn
+    right), nothing seen (accepted: the turning ends), the wall with the goal a little to the left (three
+    stops: the third turns left), at a heading of 0.5 rad. The turning stops back away from the wall (turn
+    clearance 2 m: 0.8 m)."""
+    policy_path = export_goal_line_policy(tmp_path / "goal_line.ts")
+    n = 8
+    yaw = 0.5
+    ahead = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+    side = np.array([-np.sin(yaw), np.cos(yaw), 0.0])
+    depth = np.full((n, H, W), np.inf, np.float32)
+    for i in (0, 1, 2, 3, 5, 6, 7):
+        depth[i][:, 30:50] = 1.2
+    p = np.array([1.0, 2.0, 1.5])
+    goal_side = [-1.5] * 5 + [1.5] * 3
+    fx = DecisionFixture(
+        depth_m=depth,
+        stamp_s=1.0 + 0.1 * np.arange(n),
+        p_world_body=np.tile(p, (n, 1)),
+        v_world=np.zeros((n, 3)),
+        q_world_body=np.tile([0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2)], (n, 1)),
+        goal_world=np.array([p + 10.0 * ahead + s * side for s in goal_side]),
+        camera_k=CAMERA_K,
+        T_body_camera=T_BODY_CAMERA,
+    )
+    write_fixture(tmp_path / "fx", fx)
+    config = tmp_path / "policy.yaml"
+    config.write_text(
+        CONFIG.read_text()
+        .replace("turn_after_stops: 0", "turn_after_stops: 3")
+        .replace("turn_rate_dps: 45.0", "turn_rate_dps: 30.0")
+        .replace("turn_clearance_m: 0.8", "turn_clearance_m: 2.0")
+    )
+    cfg = load_policy_config(config)
+    cpp = _replay(policy_path, tmp_path / "fx", config, tmp_path / "cpp")
+    py = _decide_all(PolicyDecider(LoadedPolicy(policy_path), cfg.safety, cfg.refusal, cfg.recovery), fx)
+    rate = np.radians(30.0)
+    assert _sent_kinds(py) == [2, 2, 2, 2, 1, 2, 2, 2]
+    np.testing.assert_allclose([d.turn_rate_radps for d in py], [0, 0, -rate, -rate, 0, 0, 0, rate])
+    np.testing.assert_array_equal(cpp["sent_kind"], _sent_kinds(py))
+    np.testing.assert_allclose(cpp["turn_rate_radps"], [d.turn_rate_radps for d in py], rtol=0, atol=1e-12)
+    for i, d in enumerate(py):
+        expected = np.zeros(4) if d.stop is None or d.stop.yaw_ctrl is None else d.stop.yaw_ctrl
+        np.testing.assert_allclose(cpp["stop_yaw"][i], expected, rtol=0, atol=1e-12)
+        if d.stop is not None:
+            np.testing.assert_allclose(cpp["stop_ctrl"][i], d.stop.ctrl_world, rtol=0, atol=1e-9)
+            assert cpp["stop_knot_dt"][i] == pytest.approx(d.stop.knot_dt_s, abs=1e-12)
+    # The turning stops back away from the wall 1.2 m ahead by 0.8 m, along the heading.
+    np.testing.assert_allclose([d.turn_backoff_m for d in py], [0, 0, 0.8, 0.8, 0, 0, 0, 0.8], atol=1e-6)
+    end = py[2].stop.position(py[2].stop.duration_s)[0]
+    np.testing.assert_allclose(end, p - 0.8 * ahead, atol=1e-6)  # the depth frame is float32
+    # The heading starts at the vehicle's.
+    assert py[2].stop.yaw_ctrl[1] == pytest.approx(yaw, abs=1e-12)
+
+
+def test_bspline_messages_carry_the_heading_only_when_the_trajectory_has_one() -> None:
+    """The turning stop's yaw points go to the tracker on the position's knots; other trajectories carry none
+    (the tracker then turns the vehicle along its direction of travel). Needs the built messages."""
+    from quad_il.inference.messages import bspline_message
+    from quad_il.inference.trajectory import braking_trajectory, turning_stop
+
+    stop = braking_trajectory(np.zeros(3), np.array([1.0, 0, 0]), 3.0, 0.5, 2.0)
+    msg = bspline_message(stop, 7)
+    assert msg.yaw_pts == [] and msg.yaw_dt == 0.0 and len(msg.knots) == 8
+    turn = turning_stop(np.zeros(3), np.zeros(3), np.array([-0.3, 0, 0]), 1.0, 0.5, 3.0, 0.5, 2.0)
+    msg = bspline_message(turn, 8)
+    np.testing.assert_array_equal(msg.yaw_pts, turn.yaw_ctrl)
+    assert msg.yaw_dt == turn.knot_dt_s and msg.knots[3] == 0.0 and msg.traj_id == 8

@@ -36,6 +36,9 @@ PolicyNodeConfig Load(quad_common::StrictYaml y) {
   c.refusal.stop_min_duration_s = y.Get<double>("refusal.stop_min_duration_s", Positive());
   c.recovery.goal_yaw_offsets_deg = y.Get<std::vector<double>>("recovery.goal_yaw_offsets_deg");
   c.recovery.steer_clearance_m = y.Get<double>("recovery.steer_clearance_m", NonNegative());
+  c.recovery.turn_after_stops = y.Get<int>("recovery.turn_after_stops", AtLeast(0));
+  c.recovery.turn_rate_dps = y.Get<double>("recovery.turn_rate_dps", Positive());
+  c.recovery.turn_clearance_m = y.Get<double>("recovery.turn_clearance_m", NonNegative());
   c.safety.enabled = y.Get<bool>("safety.enabled");
   c.safety.max_vel_mps = y.Get<double>("safety.max_vel_mps", Positive());
   c.safety.max_acc_mps2 = y.Get<double>("safety.max_acc_mps2", Positive());
@@ -44,6 +47,12 @@ PolicyNodeConfig Load(quad_common::StrictYaml y) {
   c.safety.sample_dt_s = y.Get<double>("safety.sample_dt_s", Positive());
   c.safety.check_horizon_s = y.Get<double>("safety.check_horizon_s", NonNegative());
   c.safety.collision_min_pixels = y.Get<int>("safety.collision_min_pixels", AtLeast(1));
+  if (c.recovery.turn_after_stops > 0 && c.refusal.action != RefusalAction::kStop) {
+    throw quad_common::ConfigError(
+        y.source() +
+        ": key 'recovery.turn_after_stops' is set but 'refusal.action' is not 'stop' "
+        "(the turn rides on the stopping trajectory)");
+  }
   try {
     ValidateRecoveryConfig(c.recovery, c.safety);
   } catch (const std::invalid_argument& e) {

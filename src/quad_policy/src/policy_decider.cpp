@@ -1,5 +1,6 @@
 #include "quad_policy/policy_decider.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <stdexcept>
@@ -57,6 +58,18 @@ void ValidateRecoveryConfig(const RecoveryConfig& r) {
     throw std::invalid_argument("recovery.steer_clearance_m must be >= 0 (0: off), got " +
                                 std::to_string(r.steer_clearance_m));
   }
+  if (r.turn_after_stops < 0) {
+    throw std::invalid_argument("recovery.turn_after_stops must be >= 0 (0: off), got " +
+                                std::to_string(r.turn_after_stops));
+  }
+  if (!(std::isfinite(r.turn_clearance_m) && r.turn_clearance_m >= 0.0)) {
+    throw std::invalid_argument("recovery.turn_clearance_m must be >= 0 (0: no back-off), got " +
+                                std::to_string(r.turn_clearance_m));
+  }
+  if (!(std::isfinite(r.turn_rate_dps) && r.turn_rate_dps > 0.0 && r.turn_rate_dps <= 180.0)) {
+    throw std::invalid_argument("recovery.turn_rate_dps must be within (0, 180] deg/s, got " +
+                                std::to_string(r.turn_rate_dps));
+  }
 }
 
 void ValidateRecoveryConfig(const RecoveryConfig& r, const SafetyConfig& safety) {
@@ -83,6 +96,15 @@ PolicyDecider::PolicyDecider(std::shared_ptr<const TorchPolicy> policy, const Sa
   ValidateSafetyConfig(safety_);
   ValidateRefusal(refusal_);
   ValidateRecoveryConfig(recovery_, safety_);
+  if (recovery_.turn_after_stops > 0 && refusal_.action != RefusalAction::kStop) {
+    throw std::invalid_argument(
+        "recovery.turn_after_stops needs refusal.action stop (the turn rides on the stopping trajectory)");
+  }
+}
+
+void PolicyDecider::Reset() {
+  stops_in_row_ = 0;
+  turn_sign_ = 0;
 }
 
 Decision PolicyDecider::Decide(const DecisionInputs& in) {
@@ -134,8 +156,28 @@ Decision PolicyDecider::Decide(const DecisionInputs& in) {
     }
   }
   if (!d.accepted() && !d.recovery && refusal_.action == RefusalAction::kStop) {
-    d.stop = BrakingTrajectory(in.state.p_world_body, in.state.v_world, refusal_.stop_max_decel_mps2,
-                               refusal_.stop_min_duration_s, in.stamp_s);
+    ++stops_in_row_;
+    if (recovery_.turn_after_stops > 0 && stops_in_row_ >= recovery_.turn_after_stops) {
+      const Eigen::Matrix3d R = in.state.q_world_body.normalized().toRotationMatrix();
+      const double yaw = std::atan2(R(1, 0), R(0, 0));
+      if (turn_sign_ == 0) {
+        // Towards the side the goal lies on (left when straight ahead or behind).
+        const Eigen::Vector3d to_goal = in.goal_world - in.state.p_world_body;
+        const double bearing = std::remainder(std::atan2(to_goal.y(), to_goal.x()) - yaw, 2.0 * M_PI);
+        turn_sign_ = bearing < 0.0 ? -1 : 1;
+      }
+      d.turn_rate_radps = turn_sign_ * recovery_.turn_rate_dps * M_PI / 180.0;
+      // Room to turn: back away from a surface nearer than turn_clearance_m.
+      d.turn_backoff_m = std::max(0.0, recovery_.turn_clearance_m - NearestDepth(in.depth));
+      const Eigen::Vector3d backoff = -d.turn_backoff_m * Eigen::Vector3d(std::cos(yaw), std::sin(yaw), 0.0);
+      d.stop = TurningStop(in.state.p_world_body, in.state.v_world, backoff, yaw, d.turn_rate_radps,
+                           refusal_.stop_max_decel_mps2, refusal_.stop_min_duration_s, in.stamp_s);
+    } else {
+      d.stop = BrakingTrajectory(in.state.p_world_body, in.state.v_world, refusal_.stop_max_decel_mps2,
+                                 refusal_.stop_min_duration_s, in.stamp_s);
+    }
+  } else {
+    Reset();
   }
   d.timings.safety_ms = MsSince(t0);
   counts_.Add(d.safety.verdict);

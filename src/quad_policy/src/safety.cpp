@@ -252,4 +252,16 @@ SafetyResult CheckTrajectory(const UniformBspline& traj, const Eigen::Vector3d& 
   return res;
 }
 
+double NearestDepth(const DepthImageView& depth) {
+  double nearest = std::numeric_limits<double>::infinity();
+  for (int v = 0; v < depth.height; ++v) {
+    for (int u = 0; u < depth.width; ++u) {
+      const double d = depth.at(v, u);
+      if (std::isnan(d)) continue;
+      nearest = std::min(nearest, std::max(d, 0.0));  // -inf: too near, counts as 0
+    }
+  }
+  return nearest;
+}
+
 }  // namespace quad_policy

@@ -87,23 +87,21 @@ UniformBspline PolicyTrajectory(const CtrlPoints& ctrl_world, const PolicyMeta& 
   return s;
 }
 
-UniformBspline BrakingTrajectory(const Eigen::Vector3d& p0_world, const Eigen::Vector3d& v0_world,
-                                 double max_decel_mps2, double min_duration_s, double start_time_s) {
-  if (!p0_world.allFinite() || !v0_world.allFinite() || !std::isfinite(start_time_s)) {
-    throw std::invalid_argument("stopping trajectory: non-finite start state");
-  }
-  if (!(max_decel_mps2 > 0.0) || !(min_duration_s > 0.0)) {
-    throw std::invalid_argument("stopping trajectory: max_decel_mps2 and min_duration_s must be > 0");
-  }
-  const double duration = std::max(2.0 * v0_world.norm() / max_decel_mps2, min_duration_s);
-  // P(t) = p0 + v0 T / 3 (1 - (1 - t/T)^3), P''(t) = -2 v0 (1 - t/T) / T; both extended beyond [0, T] as the
-  // polynomial (the outer control points' Greville abscissae lie outside the domain).
+namespace {
+
+// p(t) = p0 + v0 T / 3 (1 - (1 - t/T)^3) + b (3 (t/T)^2 - 2 (t/T)^3): one cubic, so the uniform cubic
+// B-spline with K = 4 and knot interval T has it exactly with control points P(tau_i) - T^2 / 6 P''(tau_i) at
+// the Greville abscissae tau_i = (i - 1) T (both extended beyond [0, T] as the polynomial).
+UniformBspline StopCubic(const Eigen::Vector3d& p0, const Eigen::Vector3d& v0, const Eigen::Vector3d& b,
+                         double duration, double start_time_s) {
   const auto position = [&](double t) {
-    const double r = 1.0 - t / duration;
-    return Eigen::Vector3d(p0_world + v0_world * (duration / 3.0) * (1.0 - r * r * r));
+    const double u = t / duration, r = 1.0 - u;
+    return Eigen::Vector3d(p0 + v0 * (duration / 3.0) * (1.0 - r * r * r) +
+                           b * (3.0 * u * u - 2.0 * u * u * u));
   };
   const auto acceleration = [&](double t) {
-    return Eigen::Vector3d(-2.0 * v0_world * (1.0 - t / duration) / duration);
+    const double u = t / duration;
+    return Eigen::Vector3d(-2.0 * v0 * (1.0 - u) / duration + b * (6.0 - 12.0 * u) / (duration * duration));
   };
   UniformBspline s;
   s.start_time_s = start_time_s;
@@ -114,6 +112,51 @@ UniformBspline BrakingTrajectory(const Eigen::Vector3d& p0_world, const Eigen::V
     s.ctrl_world.row(i) = (position(tau) - duration * duration / 6.0 * acceleration(tau)).transpose();
   }
   return s;
+}
+
+void CheckStopInputs(const Eigen::Vector3d& p0, const Eigen::Vector3d& v0, double max_decel_mps2,
+                     double min_duration_s, double start_time_s) {
+  if (!p0.allFinite() || !v0.allFinite() || !std::isfinite(start_time_s)) {
+    throw std::invalid_argument("stopping trajectory: non-finite start state");
+  }
+  if (!(max_decel_mps2 > 0.0) || !(min_duration_s > 0.0)) {
+    throw std::invalid_argument("stopping trajectory: max_decel_mps2 and min_duration_s must be > 0");
+  }
+}
+
+}  // namespace
+
+UniformBspline BrakingTrajectory(const Eigen::Vector3d& p0_world, const Eigen::Vector3d& v0_world,
+                                 double max_decel_mps2, double min_duration_s, double start_time_s) {
+  CheckStopInputs(p0_world, v0_world, max_decel_mps2, min_duration_s, start_time_s);
+  const double duration = std::max(2.0 * v0_world.norm() / max_decel_mps2, min_duration_s);
+  return StopCubic(p0_world, v0_world, Eigen::Vector3d::Zero(), duration, start_time_s);
+}
+
+UniformBspline TurningStop(const Eigen::Vector3d& p0_world, const Eigen::Vector3d& v0_world,
+                           const Eigen::Vector3d& backoff_world, double yaw0_rad, double rate_radps,
+                           double max_decel_mps2, double min_duration_s, double start_time_s) {
+  CheckStopInputs(p0_world, v0_world, max_decel_mps2, min_duration_s, start_time_s);
+  if (!backoff_world.allFinite()) throw std::invalid_argument("turning stop: non-finite back-off");
+  const double duration = std::max({2.0 * v0_world.norm() / max_decel_mps2, min_duration_s,
+                                    std::sqrt(6.0 * backoff_world.norm() / max_decel_mps2)});
+  UniformBspline s = StopCubic(p0_world, v0_world, backoff_world, duration, start_time_s);
+  SetConstantYawRate(&s, yaw0_rad, rate_radps);
+  return s;
+}
+
+void SetConstantYawRate(UniformBspline* s, double yaw0_rad, double rate_radps) {
+  if (!std::isfinite(yaw0_rad) || !std::isfinite(rate_radps)) {
+    throw std::invalid_argument("SetConstantYawRate: non-finite yaw or rate");
+  }
+  if (!(s->knot_dt_s > 0.0) || s->num_ctrl_pts() < 4) {
+    throw std::invalid_argument(
+        "SetConstantYawRate: the spline needs knot_dt_s > 0 and at least 4 control points");
+  }
+  s->yaw_ctrl.resize(static_cast<std::size_t>(s->num_ctrl_pts()));
+  for (int i = 0; i < s->num_ctrl_pts(); ++i) {
+    s->yaw_ctrl[static_cast<std::size_t>(i)] = yaw0_rad + rate_radps * (i - 1) * s->knot_dt_s;
+  }
 }
 
 }  // namespace quad_policy

@@ -200,6 +200,45 @@ TEST(PolicyNodeConfig, SteeringClearanceIsReadAndBadValuesNamed) {
             std::string::npos);
 }
 
+TEST(PolicyNodeConfig, TurningInPlaceIsReadAndBadValuesNamed) {
+  const PolicyNodeConfig off = LoadPolicyNodeConfig(QUAD_IL_CONFIG_DIR "/policy.yaml");
+  EXPECT_EQ(off.recovery.turn_after_stops, 0);  // off by default
+  const auto with = [](const std::string& after, const std::string& rate) {
+    std::string text = RepoConfigWith("turn_after_stops: 0", "turn_after_stops: " + after);
+    const std::string key = "turn_rate_dps: 45.0";
+    return text.replace(text.find(key), key.size(), "turn_rate_dps: " + rate);
+  };
+  const PolicyNodeConfig c = PolicyNodeConfigFromString(with("15", "30"), "c");
+  EXPECT_EQ(c.recovery.turn_after_stops, 15);
+  EXPECT_EQ(c.recovery.turn_rate_dps, 30.0);
+  EXPECT_NE(ErrorOf([&] {
+              PolicyNodeConfigFromString(with("-1", "45"), "c");
+            }).find("'recovery.turn_after_stops' has value -1"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf([&] {
+              PolicyNodeConfigFromString(with("15", "0"), "c");
+            }).find("'recovery.turn_rate_dps' has value 0"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf([&] {
+              PolicyNodeConfigFromString(with("15", "200"), "c");
+            }).find("recovery.turn_rate_dps must be within (0, 180] deg/s, got 200"),
+            std::string::npos);
+  std::string hover = with("15", "45");
+  hover.replace(hover.find("action: stop"), 12, "action: hover");
+  EXPECT_NE(ErrorOf([&] {
+              PolicyNodeConfigFromString(hover, "c");
+            }).find("'recovery.turn_after_stops' is set but 'refusal.action' is not 'stop'"),
+            std::string::npos);
+  hover = RepoConfigWith("action: stop", "action: hover");  // off: hover is fine
+  EXPECT_NO_THROW(PolicyNodeConfigFromString(hover, "c"));
+  EXPECT_EQ(c.recovery.turn_clearance_m, 0.8);
+  EXPECT_NE(ErrorOf([&] {
+              PolicyNodeConfigFromString(RepoConfigWith("turn_clearance_m: 0.8", "turn_clearance_m: -1"),
+                                         "c");
+            }).find("'recovery.turn_clearance_m' has value -1"),
+            std::string::npos);
+}
+
 class TempDir : public ::testing::Test {
  protected:
   void SetUp() override {

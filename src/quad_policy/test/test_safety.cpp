@@ -214,6 +214,20 @@ TEST(Safety, SampleTimesAreIntegerStepsEndingAtTheHorizon) {
   EXPECT_EQ(SafetySampleTimes(Line(1.0), cfg).size(), 5u);  // 0 .. 2.0 exactly
 }
 
+TEST(Safety, NearestDepthTreatsTheRep118SpecialsAsTheDepthTestDoes) {
+  DepthImage img;
+  img.width = 5;
+  img.height = 4;
+  img.data_m.assign(20, std::numeric_limits<float>::infinity());
+  EXPECT_EQ(NearestDepth(img.view()), std::numeric_limits<double>::infinity());  // nothing seen
+  img.data_m[7] = 2.5f;
+  img.data_m[18] = 1.75f;
+  img.data_m[0] = std::numeric_limits<float>::quiet_NaN();
+  EXPECT_EQ(NearestDepth(img.view()), 1.75);
+  img.data_m[14] = -std::numeric_limits<float>::infinity();  // too near: 0
+  EXPECT_EQ(NearestDepth(img.view()), 0.0);
+}
+
 TEST(Safety, ConfigValidationNamesTheField) {
   SafetyConfig cfg;
   cfg.sample_dt_s = 0.0;

@@ -13,7 +13,9 @@
 // reason) and traj_in_view.npy (TrajectoryInView). The recovery (the config's recovery section) writes
 // recovery_tries.npy, recovery_yaw_deg.npy (NaN: not recovered) and recovery_ctrl.npy (zeros: not
 // recovered); sent_kind.npy is 0 nothing, 1 the policy's plan, 2 the stopping trajectory, 3 the recovery's, 4
-// the recovery's replacing an accepted plan (steering).
+// the recovery's replacing an accepted plan (steering). Turning in place (recovery.turn_after_stops) writes
+// turn_rate_radps.npy (0: not turning) and stop_yaw.npy (the stopping trajectory's 4 yaw control points;
+// zeros: none). The frames are decided in order by one decider, as a node decides an episode.
 //
 // Exit status: 0 done, 1 bad input (message on stderr), 2 usage.
 #include <filesystem>
@@ -69,7 +71,7 @@ int main(int argc, char** argv) {
     const std::size_t k = static_cast<std::size_t>(m.num_ctrl_pts);
     std::vector<float> depth_x, file_depth_x, state_x, y;
     std::vector<double> ctrl, file_decode, file_forward, safety_value, stop_ctrl, stop_dt, knots;
-    std::vector<double> recovery_yaw, recovery_ctrl;
+    std::vector<double> recovery_yaw, recovery_ctrl, turn_rate, stop_yaw;
     std::vector<int32_t> verdict, sent_kind, recovery_tries;
     for (std::size_t i = 0; i < n; ++i) {
       const RecordedFrame& f = fx.frames[i];
@@ -107,6 +109,12 @@ int main(int argc, char** argv) {
         stop_ctrl.insert(stop_ctrl.end(), 12, 0.0);
         stop_dt.push_back(0.0);
       }
+      turn_rate.push_back(d.turn_rate_radps);
+      if (d.stop && !d.stop->yaw_ctrl.empty()) {
+        stop_yaw.insert(stop_yaw.end(), d.stop->yaw_ctrl.begin(), d.stop->yaw_ctrl.end());
+      } else {
+        stop_yaw.insert(stop_yaw.end(), 4, 0.0);
+      }
       if (i == 0) knots = d.proposed.Knots();
       std::cerr << "[policy_replay] frame " << i << ": " << d.safety.reason << "\n";
     }
@@ -129,6 +137,8 @@ int main(int argc, char** argv) {
     WriteNpy(out + "/recovery_tries.npy", NpyArray::FromInt32(recovery_tries, {n}));
     WriteNpy(out + "/recovery_yaw_deg.npy", NpyArray::FromDouble(recovery_yaw, {n}));
     WriteNpy(out + "/recovery_ctrl.npy", NpyArray::FromDouble(recovery_ctrl, {n, k, 3}));
+    WriteNpy(out + "/turn_rate_radps.npy", NpyArray::FromDouble(turn_rate, {n}));
+    WriteNpy(out + "/stop_yaw.npy", NpyArray::FromDouble(stop_yaw, {n, 4}));
     WriteNpy(out + "/knots.npy", NpyArray::FromDouble(knots, {knots.size()}));
     WriteNpy(out + "/has_forward_net.npy", NpyArray::FromInt32({policy->has_forward_net() ? 1 : 0}, {1}));
     if (args.count("trajectories")) {

@@ -39,9 +39,21 @@ struct RefusalConfig {
 // the decider try the same turned goals; the first plan that keeps steer_clearance_m and stays in view is
 // sent instead. The vehicle turns away from a box while it is still far enough for the turn to stay in view,
 // instead of stopping in front of it. 0: off.
+// Turning in place (turn_after_stops > 0, refusal action stop): from the turn_after_stops-th stopping
+// trajectory in a row (refused, not recovered) on, the stopping trajectory also turns the heading at
+// turn_rate_dps, towards the side the goal lies on (chosen when the turning starts, kept until a plan is
+// sent again). The camera then sweeps the surroundings and the network, asked every decision, sees the
+// space beside the box that blocks it; the first plan the safety layer accepts (or the recovery finds) ends
+// the turning. Room to turn: while the depth frame shows a surface nearer than turn_clearance_m
+// (NearestDepth), the turning stop also backs away along the heading by the missing distance (TurningStop);
+// turning a box-shaped vehicle on the spot right in front of a box would touch it. Not learned: a fixed
+// behaviour of the node, off by default. turn_after_stops 0: off; turn_clearance_m 0: no back-off.
 struct RecoveryConfig {
   std::vector<double> goal_yaw_offsets_deg;
   double steer_clearance_m = 0.0;
+  int turn_after_stops = 0;
+  double turn_rate_dps = 45.0;
+  double turn_clearance_m = 0.0;
 };
 // Throws std::invalid_argument naming the key and the value. With a safety config, also checks that a
 // non-zero steer_clearance_m exceeds safety.vehicle_radius_m and has turns to try.
@@ -75,11 +87,13 @@ struct Decision {
   // gave a plan that passed: that plan and the angle.
   std::optional<UniformBspline> recovery;
   double recovery_yaw_deg = 0.0;
-  int recovery_tries = 0;      // turned goals asked (0 when no search ran)
-  bool steered = false;        // the recovery replaces an accepted plan (steering), not a refused one
-  std::vector<float> depth_x;  // network depth input (input_height x input_width)
-  StateVector state_x{};       // state vector (EncodeState)
-  std::vector<float> y;        // network output (training representation)
+  int recovery_tries = 0;        // turned goals asked (0 when no search ran)
+  bool steered = false;          // the recovery replaces an accepted plan (steering), not a refused one
+  double turn_rate_radps = 0.0;  // non-zero: the stopping trajectory turns in place at this rate
+  double turn_backoff_m = 0.0;   // and backs away along the heading by this much
+  std::vector<float> depth_x;    // network depth input (input_height x input_width)
+  StateVector state_x{};         // state vector (EncodeState)
+  std::vector<float> y;          // network output (training representation)
   DecisionTimings timings;
   bool accepted() const { return safety.accepted(); }
   // The trajectory to send to the tracker: the recovery's plan if there is one, else the proposal if
@@ -93,8 +107,11 @@ class PolicyDecider {
   PolicyDecider(std::shared_ptr<const TorchPolicy> policy, const SafetyConfig& safety,
                 const RefusalConfig& refusal, const RecoveryConfig& recovery = {});
 
-  // Throws std::invalid_argument on invalid inputs (non-finite odometry or goal, empty depth).
+  // Throws std::invalid_argument on invalid inputs (non-finite odometry or goal, empty depth). Decisions
+  // depend on the ones before only through the turning's count of stops in a row (Reset() clears it).
   Decision Decide(const DecisionInputs& in);
+  // A new episode: forgets the stops in a row and the turning direction.
+  void Reset();
 
   const VerdictCounts& counts() const { return counts_; }
   const TorchPolicy& policy() const { return *policy_; }
@@ -109,6 +126,8 @@ class PolicyDecider {
   RecoveryConfig recovery_;
   OutputDecoder decoder_;
   VerdictCounts counts_;
+  int stops_in_row_ = 0;  // consecutive decisions that sent the stopping trajectory
+  int turn_sign_ = 0;     // +1 left, -1 right, 0: not turning
 };
 
 }  // namespace quad_policy

@@ -96,6 +96,10 @@ SafetyResult CheckTrajectory(const UniformBspline& traj, const Eigen::Vector3d& 
 // turned away from the goal may leave the field of view, where the depth check cannot judge it.
 bool TrajectoryInView(const UniformBspline& traj, const CameraModel& camera, const SafetyConfig& cfg);
 
+// The smallest depth (along the optical axis, m) among the pixels that show a surface: -inf (nearer than the
+// camera's minimum range) counts as 0, NaN and +inf show none. +inf when no pixel shows a surface.
+double NearestDepth(const DepthImageView& depth);
+
 // Counts of verdicts (index: SafetyVerdict value).
 struct VerdictCounts {
   std::array<unsigned long, kNumSafetyVerdicts> counts{};

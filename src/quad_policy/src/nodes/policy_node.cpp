@@ -184,6 +184,7 @@ class PolicyNode {
       odom_.clear();
       last_decision_stamp_.reset();
       hovering_ = false;
+      reset_decider_ = true;
       ROS_INFO("policy_node: episode %u started: waiting for its goal", msg->episode_id);
     }
     episode_id_ = msg->episode_id;
@@ -258,6 +259,7 @@ class PolicyNode {
     std::optional<OdomSample> odom;
     std::optional<sensor_msgs::CameraInfo> info;
     std::optional<ros::Time> last_decision;
+    bool reset_decider = false;
     {
       // The frame's own odometry (its control period's, published before the frame) travels on another
       // topic: wait for it (bounded), so that which odometry a decision starts from does not depend on
@@ -268,6 +270,7 @@ class PolicyNode {
       });
       goal = goal_;
       last_decision = last_decision_stamp_;
+      std::swap(reset_decider, reset_decider_);
       for (auto it = odom_.rbegin(); it != odom_.rend(); ++it) {
         if (it->stamp_s <= stamp + 1e-9) {
           odom = *it;
@@ -276,6 +279,7 @@ class PolicyNode {
       }
       info = camera_info_;
     }
+    if (reset_decider) decider_->Reset();  // a new episode (its stops in a row start at 0)
     if (!goal) return Skip("no_goal", "no goal for this episode yet", out);
     if (!odom) return Skip("no_odometry", "no odometry at or before the frame", out);
     if (!info) return Skip("no_camera_info", "no camera info yet", out);
@@ -366,8 +370,18 @@ class PolicyNode {
                     d.steered ? "steered" : "recovered", d.recovery_yaw_deg);
       out->reason += turn;
     }
+    if (d.turn_rate_radps != 0.0) {
+      Count("turning");
+      char turn[96];
+      std::snprintf(turn, sizeof(turn), "; turning in place at %.0f deg/s, backing off %.2f m",
+                    d.turn_rate_radps * 180.0 / M_PI, d.turn_backoff_m);
+      out->reason += turn;
+    }
     if (send != nullptr) {
-      out->action = d.recovery ? (d.steered ? "steer" : "recovery") : (d.accepted() ? "policy" : "stop");
+      out->action = d.recovery                 ? (d.steered ? "steer" : "recovery")
+                    : d.accepted()             ? "policy"
+                    : d.turn_rate_radps != 0.0 ? "turn"
+                                               : "stop";
       out->traj_id = msg.traj_id;
       bspline_pub_.publish(msg);
       SendToTracker(msg);
@@ -487,6 +501,7 @@ class PolicyNode {
   std::optional<uint32_t> episode_id_;
   std::optional<ros::Time> last_decision_stamp_;
   bool hovering_ = false;  // the tracker was switched to hover by a refusal (cleared by the next trajectory)
+  bool reset_decider_ = false;  // a new episode began: the depth thread resets the decider before deciding
 
   // depth thread only
   std::optional<Eigen::Isometry3d> T_body_camera_;

@@ -23,7 +23,9 @@ inline quad_msgs::Bspline ToBsplineMessage(const UniformBspline& s, int64_t traj
     m.pos_pts[i].y = s.ctrl_world(i, 1);
     m.pos_pts[i].z = s.ctrl_world(i, 2);
   }
-  m.yaw_dt = 0.0;  // no yaw points: the tracker yaws along the direction of travel
+  // No yaw points: the tracker yaws along the direction of travel. Else the heading on the same knots.
+  m.yaw_pts = s.yaw_ctrl;
+  m.yaw_dt = s.yaw_ctrl.empty() ? 0.0 : s.knot_dt_s;
   return m;
 }
 

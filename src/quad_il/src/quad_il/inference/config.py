@@ -48,6 +48,14 @@ class RecoveryConfig(_Strict):
     # the same turns; the first that also keeps this distance (and stays in view) replaces it. 0: off; else it
     # must exceed safety.vehicle_radius_m (checked in PolicyNodeConfig).
     steer_clearance_m: float = Field(ge=0.0, allow_inf_nan=False)
+    # Turning in place: from this many stopping trajectories in a row (refused, not recovered) on, the stop
+    # also turns the heading at turn_rate_dps towards the goal's side, until a plan is sent. 0: off; needs
+    # refusal.action stop (checked in PolicyNodeConfig). Not learned: a fixed behaviour of the node.
+    turn_after_stops: int = Field(ge=0)
+    turn_rate_dps: float = Field(gt=0.0, le=180.0, allow_inf_nan=False)
+    # ... and while the depth frame shows a surface nearer than this, the turning stop backs away along the
+    # heading by the difference (room to turn). 0: no back-off.
+    turn_clearance_m: float = Field(ge=0.0, allow_inf_nan=False)
 
     @field_validator("goal_yaw_offsets_deg")
     @classmethod
@@ -73,6 +81,7 @@ class PolicyNodeConfig(_Strict):
     @model_validator(mode="after")
     def _steering(self) -> PolicyNodeConfig:
         check_steering(self.recovery, self.safety)
+        check_turning(self.recovery, self.refusal)
         return self
 
 
@@ -90,6 +99,15 @@ def check_steering(recovery: RecoveryConfig, safety: SafetyConfig) -> None:
         raise ValueError(
             "recovery.steer_clearance_m is set but recovery.goal_yaw_offsets_deg is empty: "
             "no turns to steer by"
+        )
+
+
+def check_turning(recovery: RecoveryConfig, refusal: RefusalConfig) -> None:
+    """ValueError when turning in place is on without the stopping trajectory it rides on."""
+    if recovery.turn_after_stops > 0 and refusal.action != "stop":
+        raise ValueError(
+            "recovery.turn_after_stops is set but refusal.action is not 'stop' "
+            "(the turn rides on the stopping trajectory)"
         )
 
 

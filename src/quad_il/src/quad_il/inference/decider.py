@@ -15,7 +15,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from quad_il.inference.config import RecoveryConfig, RefusalConfig, SafetyConfig, check_steering
+from quad_il.inference.config import (
+    RecoveryConfig,
+    RefusalConfig,
+    SafetyConfig,
+    check_steering,
+    check_turning,
+)
 from quad_il.inference.fixture import DecisionFixture
 from quad_il.inference.policy import LoadedPolicy
 from quad_il.inference.preprocessing import PolicyPreprocessing, as_row
@@ -24,9 +30,15 @@ from quad_il.inference.safety import (
     SafetyResult,
     VerdictCounts,
     check_trajectory,
+    nearest_depth,
     trajectory_in_view,
 )
-from quad_il.inference.trajectory import UniformBspline, braking_trajectory, policy_trajectory
+from quad_il.inference.trajectory import (
+    UniformBspline,
+    braking_trajectory,
+    policy_trajectory,
+    turning_stop,
+)
 
 FloatArray = NDArray[np.float64]
 
@@ -78,6 +90,8 @@ class Decision:
     recovery_yaw_deg: float | None = None
     recovery_tries: int = 0  # turned goals asked (0 when no search ran)
     steered: bool = False  # the recovery replaces an accepted plan (steering), not a refused one
+    turn_rate_radps: float = 0.0  # non-zero: the stopping trajectory turns in place at this rate
+    turn_backoff_m: float = 0.0  # and backs away along the heading by this much
 
     @property
     def accepted(self) -> bool:
@@ -98,6 +112,13 @@ def turned_goal(p_world_body: FloatArray, goal_world: FloatArray, yaw_deg: float
     return p + np.array([c * d[0] - s * d[1], s * d[0] + c * d[1], d[2]])
 
 
+def yaw_of(q_world_body: FloatArray) -> float:
+    """Heading (rad) of the body x axis of the quaternion (x, y, z, w), as the C++ twin (rotation matrix)."""
+    x, y, z, w = (float(c) for c in np.asarray(q_world_body, dtype=np.float64).reshape(4))
+    n = x * x + y * y + z * z + w * w
+    return math.atan2(2.0 * (x * y + w * z) / n, 1.0 - 2.0 * (y * y + z * z) / n)
+
+
 class PolicyDecider:
     def __init__(
         self,
@@ -112,12 +133,26 @@ class PolicyDecider:
         self.recovery = (
             recovery
             if recovery is not None
-            else RecoveryConfig(goal_yaw_offsets_deg=[], steer_clearance_m=0.0)
+            else RecoveryConfig(
+                goal_yaw_offsets_deg=[],
+                steer_clearance_m=0.0,
+                turn_after_stops=0,
+                turn_rate_dps=45.0,
+                turn_clearance_m=0.0,
+            )
         )
         check_steering(self.recovery, safety)
+        check_turning(self.recovery, refusal)
         self.steer_safety = safety.model_copy(update={"vehicle_radius_m": self.recovery.steer_clearance_m})
         self.pre = PolicyPreprocessing(policy.meta)
         self.counts = VerdictCounts()
+        self.stops_in_row = 0  # consecutive decisions that sent the stopping trajectory
+        self.turn_sign = 0  # +1 left, -1 right, 0: not turning
+
+    def reset(self) -> None:
+        """A new episode: forgets the stops in a row and the turning direction."""
+        self.stops_in_row = 0
+        self.turn_sign = 0
 
     def decide(self, inp: DecisionInputs) -> Decision:
         """Raises ValueError on invalid inputs (non-finite odometry or goal, empty depth)."""
@@ -169,14 +204,44 @@ class PolicyDecider:
                     recovery, recovery_yaw = traj, yaw
                     break
         stop = None
+        turn_rate = 0.0
+        backoff = 0.0
         if not result.accepted and recovery is None and self.refusal.action == "stop":
-            stop = braking_trajectory(
-                inp.p_world_body,
-                inp.v_world,
-                self.refusal.stop_max_decel_mps2,
-                self.refusal.stop_min_duration_s,
-                inp.stamp_s,
-            )
+            self.stops_in_row += 1
+            n = self.recovery.turn_after_stops
+            if n > 0 and self.stops_in_row >= n:
+                yaw = yaw_of(inp.q_world_body)
+                p0 = np.asarray(inp.p_world_body, np.float64).reshape(3)
+                if self.turn_sign == 0:
+                    # Towards the side the goal lies on (left when straight ahead or behind).
+                    to_goal = np.asarray(inp.goal_world, np.float64).reshape(3) - p0
+                    bearing = math.remainder(
+                        math.atan2(float(to_goal[1]), float(to_goal[0])) - yaw, 2.0 * math.pi
+                    )
+                    self.turn_sign = -1 if bearing < 0.0 else 1
+                turn_rate = self.turn_sign * math.radians(self.recovery.turn_rate_dps)
+                # Room to turn: back away from a surface nearer than turn_clearance_m.
+                backoff = max(0.0, self.recovery.turn_clearance_m - nearest_depth(inp.depth_m))
+                stop = turning_stop(
+                    p0,
+                    inp.v_world,
+                    -backoff * np.array([math.cos(yaw), math.sin(yaw), 0.0]),
+                    yaw,
+                    turn_rate,
+                    self.refusal.stop_max_decel_mps2,
+                    self.refusal.stop_min_duration_s,
+                    inp.stamp_s,
+                )
+            else:
+                stop = braking_trajectory(
+                    inp.p_world_body,
+                    inp.v_world,
+                    self.refusal.stop_max_decel_mps2,
+                    self.refusal.stop_min_duration_s,
+                    inp.stamp_s,
+                )
+        else:
+            self.reset()
         t4 = time.perf_counter()
         self.counts.add(result.verdict)
         return Decision(
@@ -191,4 +256,6 @@ class PolicyDecider:
             recovery_yaw_deg=recovery_yaw,
             recovery_tries=tries,
             steered=steering and recovery is not None,
+            turn_rate_radps=turn_rate,
+            turn_backoff_m=backoff,
         )

@@ -92,6 +92,7 @@ class PolicyNode:
         self.episode_id: int | None = None
         self.last_decision_stamp: rospy.Time | None = None
         self.hovering = False
+        self.reset_decider = False  # a new episode began: reset the decider before its next decision
         self.T_body_camera: np.ndarray | None = None
         self.counts: dict[str, int] = {}
         self.traj_id = 0
@@ -182,6 +183,7 @@ class PolicyNode:
                 self.odom.clear()
                 self.last_decision_stamp = None
                 self.hovering = False
+                self.reset_decider = True
                 rospy.loginfo(f"policy_node (py): episode {msg.episode_id} started: waiting for its goal")
             self.episode_id = msg.episode_id
 
@@ -237,6 +239,9 @@ class PolicyNode:
             odom = next((o for o in reversed(self.odom) if o.stamp_s <= stamp + 1e-9), None)
             info = self.camera_info
             last_decision = self.last_decision_stamp
+            reset_decider, self.reset_decider = self.reset_decider, False
+        if reset_decider:
+            self.decider.reset()  # a new episode (its stops in a row start at 0)
         if goal is None:
             return self._skip("no_goal", "no goal for this episode yet", out)
         if odom is None:
@@ -313,11 +318,17 @@ class PolicyNode:
             what = "steered" if d.steered else "recovered"
             self._count(what)
             out.reason += f"; {what} with the goal turned {d.recovery_yaw_deg:g} deg"
+        if d.turn_rate_radps != 0.0:
+            self._count("turning")
+            out.reason += (
+                f"; turning in place at {math.degrees(d.turn_rate_radps):.0f} deg/s, "
+                f"backing off {d.turn_backoff_m:.2f} m"
+            )
         if bspline is not None:
             if d.recovery is not None:
                 out.action = "steer" if d.steered else "recovery"
             else:
-                out.action = "policy" if d.accepted else "stop"
+                out.action = "policy" if d.accepted else ("turn" if d.turn_rate_radps != 0.0 else "stop")
             out.traj_id = bspline.traj_id
             self.bspline_pub.publish(bspline)
             self._send_to_tracker(bspline)

@@ -145,6 +145,15 @@ def find_depth_collision(
     return DepthCollision(False)
 
 
+def nearest_depth(depth_m: NDArray[np.float32]) -> float:
+    """The smallest depth (along the optical axis, m) among the pixels that show a surface: -inf (nearer than
+    the camera's minimum range) counts as 0, NaN and +inf show none; +inf when no pixel shows one (C++
+    NearestDepth)."""
+    d = np.asarray(depth_m, dtype=np.float64)
+    d = d[~np.isnan(d)]
+    return float(max(np.min(d), 0.0)) if d.size else math.inf
+
+
 def safety_sample_times(traj: UniformBspline, cfg: SafetyConfig) -> FloatArray:
     duration = traj.duration_s
     horizon = min(cfg.check_horizon_s, duration) if cfg.check_horizon_s > 0.0 else duration

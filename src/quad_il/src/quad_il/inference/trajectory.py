@@ -24,6 +24,9 @@ class UniformBspline:
     start_time_s: float
     knot_dt_s: float
     ctrl_world: FloatArray  # (K, 3), K >= 4
+    # None: no yaw (the tracker turns the vehicle along its direction of travel). Else (K,) yaw control points
+    # (rad, not wrapped) on the same knots: the tracker flies this heading.
+    yaw_ctrl: FloatArray | None = None
 
     @property
     def num_ctrl_pts(self) -> int:
@@ -84,6 +87,38 @@ def policy_trajectory(ctrl_world: FloatArray, meta: PolicyMeta, stamp_s: float) 
     return UniformBspline(float(stamp_s), meta.knot_dt_s, c)
 
 
+def _stop_cubic(
+    p0: FloatArray, v0: FloatArray, b: FloatArray, duration: float, start_time_s: float
+) -> UniformBspline:
+    """p(t) = p0 + v0 T / 3 (1 - (1 - t/T)^3) + b (3 (t/T)^2 - 2 (t/T)^3): one cubic, so K = 4 control points
+    c_i = P(tau_i) - T^2 / 6 P''(tau_i), tau_i = (i - 1) T, represent it exactly (as the C++ twin)."""
+    ctrl = np.empty((4, 3))
+    for i in range(4):
+        tau = (i - 1) * duration
+        u = tau / duration
+        r = 1.0 - u
+        position = p0 + v0 * (duration / 3.0) * (1.0 - r * r * r) + b * (3.0 * u * u - 2.0 * u * u * u)
+        acceleration = -2.0 * v0 * (1.0 - u) / duration + b * (6.0 - 12.0 * u) / (duration * duration)
+        ctrl[i] = position - duration * duration / 6.0 * acceleration
+    return UniformBspline(float(start_time_s), duration, ctrl)
+
+
+def _stop_inputs(
+    p0_world: FloatArray,
+    v0_world: FloatArray,
+    max_decel_mps2: float,
+    min_duration_s: float,
+    start_time_s: float,
+) -> tuple[FloatArray, FloatArray]:
+    p0 = np.asarray(p0_world, dtype=np.float64)
+    v0 = np.asarray(v0_world, dtype=np.float64)
+    if not (np.all(np.isfinite(p0)) and np.all(np.isfinite(v0)) and math.isfinite(start_time_s)):
+        raise ValueError("stopping trajectory: non-finite start state")
+    if not (max_decel_mps2 > 0.0 and min_duration_s > 0.0):
+        raise ValueError("stopping trajectory: max_decel_mps2 and min_duration_s must be > 0")
+    return p0, v0
+
+
 def braking_trajectory(
     p0_world: FloatArray,
     v0_world: FloatArray,
@@ -92,20 +127,46 @@ def braking_trajectory(
     start_time_s: float,
 ) -> UniformBspline:
     """From p0 with velocity v0 to rest along a line: p(t) = p0 + v0 T / 3 (1 - (1 - t/T)^3) on [0, T], T =
-    max(2 |v0| / max_decel, min_duration) (acceleration at most max_decel). One cubic: K = 4 control points
-    c_i = P(tau_i) - T^2 / 6 P''(tau_i), tau_i = (i - 1) T, represent it exactly (as the C++ twin)."""
-    p0 = np.asarray(p0_world, dtype=np.float64)
-    v0 = np.asarray(v0_world, dtype=np.float64)
-    if not (np.all(np.isfinite(p0)) and np.all(np.isfinite(v0)) and math.isfinite(start_time_s)):
-        raise ValueError("stopping trajectory: non-finite start state")
-    if not (max_decel_mps2 > 0.0 and min_duration_s > 0.0):
-        raise ValueError("stopping trajectory: max_decel_mps2 and min_duration_s must be > 0")
+    max(2 |v0| / max_decel, min_duration) (acceleration at most max_decel). One cubic (K = 4)."""
+    p0, v0 = _stop_inputs(p0_world, v0_world, max_decel_mps2, min_duration_s, start_time_s)
     duration = max(2.0 * float(np.linalg.norm(v0)) / max_decel_mps2, min_duration_s)
-    ctrl = np.empty((4, 3))
-    for i in range(4):
-        tau = (i - 1) * duration
-        r = 1.0 - tau / duration
-        position = p0 + v0 * (duration / 3.0) * (1.0 - r * r * r)
-        acceleration = -2.0 * v0 * (1.0 - tau / duration) / duration
-        ctrl[i] = position - duration * duration / 6.0 * acceleration
-    return UniformBspline(float(start_time_s), duration, ctrl)
+    return _stop_cubic(p0, v0, np.zeros(3), duration, start_time_s)
+
+
+def turning_stop(
+    p0_world: FloatArray,
+    v0_world: FloatArray,
+    backoff_world: FloatArray,
+    yaw0_rad: float,
+    rate_radps: float,
+    max_decel_mps2: float,
+    min_duration_s: float,
+    start_time_s: float,
+) -> UniformBspline:
+    """The stopping trajectory of turning in place (C++ TurningStop): braking_trajectory's motion plus the
+    back-off b blended in with s(u) = 3u^2 - 2u^3, and the heading yaw0 + rate t; T = max(2 |v0| /
+    max_decel, min_duration, sqrt(6 |b| / max_decel)) keeps the back-off's own acceleration 6 |b| / T^2
+    within max_decel."""
+    p0, v0 = _stop_inputs(p0_world, v0_world, max_decel_mps2, min_duration_s, start_time_s)
+    b = np.asarray(backoff_world, dtype=np.float64).reshape(3)
+    if not np.all(np.isfinite(b)):
+        raise ValueError("turning stop: non-finite back-off")
+    duration = max(
+        2.0 * float(np.linalg.norm(v0)) / max_decel_mps2,
+        min_duration_s,
+        math.sqrt(6.0 * float(np.linalg.norm(b)) / max_decel_mps2),
+    )
+    return with_constant_yaw_rate(_stop_cubic(p0, v0, b, duration, start_time_s), yaw0_rad, rate_radps)
+
+
+def with_constant_yaw_rate(s: UniformBspline, yaw0_rad: float, rate_radps: float) -> UniformBspline:
+    """s with a heading that turns at a constant rate, yaw(t) = yaw0 + rate t: a uniform B-spline reproduces a
+    linear function exactly with its control points at the Greville abscissae (i - 1) knot_dt_s."""
+    if not (math.isfinite(yaw0_rad) and math.isfinite(rate_radps)):
+        raise ValueError("with_constant_yaw_rate: non-finite yaw or rate")
+    if not (s.knot_dt_s > 0.0 and s.num_ctrl_pts >= 4):
+        raise ValueError(
+            "with_constant_yaw_rate: the spline needs knot_dt_s > 0 and at least 4 control points"
+        )
+    yaw = yaw0_rad + rate_radps * (np.arange(s.num_ctrl_pts, dtype=np.float64) - 1.0) * s.knot_dt_s
+    return UniformBspline(s.start_time_s, s.knot_dt_s, s.ctrl_world, yaw)
