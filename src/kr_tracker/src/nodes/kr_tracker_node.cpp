@@ -119,11 +119,12 @@ class TrackerNode {
       Publish(step.command, step.ref, msg->header.stamp);
       return;
     }
-    // Receipt time; before the first /clock (sim time) now() is zero, so the message's own stamp stands in:
-    // a zero receipt time would make the first watchdog tick call fresh odometry stale and publish a hold
-    // command that a lockstepped simulator could take instead of this one.
-    const ros::Time rx = ros::Time::now();
-    last_odom_rx_ = rx.isZero() ? msg->header.stamp : rx;
+    // Receipt time, but never before the message's own stamp. Under sim time now() follows /clock, which
+    // arrives on its own connection: before the first /clock it is zero, and on a loaded machine it can lag
+    // the odometry by more than odom_timeout_s. Either would let the next watchdog tick (once /clock catches
+    // up) call fresh odometry stale and publish a hold command stamped like the odometry, which a lockstepped
+    // simulator could take instead of this one: a run that depends on the machine's load.
+    last_odom_rx_ = std::max(ros::Time::now(), msg->header.stamp);
     if (stale_) ROS_INFO("kr_tracker: odometry is back");
     stale_ = false;
     if (first) {
