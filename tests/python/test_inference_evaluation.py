@@ -203,6 +203,13 @@ def test_bad_policy_and_policy_config_paths_are_named(
     assert "--policy must name an exported policy file" in capsys.readouterr().err
     assert main([*base, "--policy", str(policy), "--policy-config", str(tmp_path / "nope.yaml")]) == 1
     assert f"--policy-config: no such file '{tmp_path / 'nope.yaml'}'" in capsys.readouterr().err
+    # A config the nodes would refuse is refused before anything is launched, naming the key.
+    bad = tmp_path / "bad.yaml"
+    bad.write_text((ROOT / "config" / "policy.yaml").read_text().replace("turn_clearance_m: 0.8\n", ""))
+    assert main([*base, "--policy", str(policy), "--policy-config", str(bad)]) == 1
+    err = capsys.readouterr().err
+    assert "--policy-config: " in err and "key 'recovery.turn_clearance_m': Field required" in err, err
+    assert not (tmp_path / "out" / "logs").exists()  # nothing was launched
 
 
 def test_a_lockstep_runner_without_the_controllers_consumer_name_is_refused(

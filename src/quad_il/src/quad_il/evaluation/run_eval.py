@@ -322,6 +322,14 @@ def _run(args: argparse.Namespace, write_report: Callable[..., Path]) -> int:
                 raise EvalError(f"--policy must name an exported policy file, got {args.policy!r}")
             if args.policy_config and not Path(args.policy_config).is_file():
                 raise EvalError(f"--policy-config: no such file {args.policy_config!r}")
+            # Checked here with the nodes' own strict schema: a node that dies on its config at launch
+            # would otherwise show only as "no depth frame" after the runner's 30 s wait.
+            from quad_il.inference.config import PolicyConfigError, load_policy_config
+
+            try:
+                load_policy_config(args.policy_config or ROOT / "config" / "policy.yaml")
+            except PolicyConfigError as e:
+                raise EvalError(f"--policy-config: {e}") from None
         out = Path(args.out).resolve()  # the nodes run in ROS_HOME: every path handed to them is absolute
         out.mkdir(parents=True, exist_ok=True)
         sim_base = yaml.safe_load(Path(args.sim_config).read_text())
