@@ -8,6 +8,7 @@ acknowledged (no lockstep timeouts), and the node is still alive at the end."""
 
 from __future__ import annotations
 
+import math
 import os
 import tempfile
 import threading
@@ -21,6 +22,7 @@ import rospy
 import rostest
 import yaml
 from actionlib_msgs.msg import GoalStatusArray
+from nav_msgs.msg import Odometry
 
 from quad_il.collection.episodes import EpisodeSpec
 from quad_il.evaluation.runner import EpisodeRunner
@@ -39,7 +41,7 @@ VERDICTS = {
     "start_far_from_vehicle",
     "collision_in_depth",
 }
-EVENTS = {"tracker_not_connected", "hover_failed"}
+EVENTS = {"tracker_not_connected", "hover_failed", "turning"}
 SKIPS = {"no_goal", "no_odometry", "no_camera_info", "no_camera_pose", "stale_odometry", "goal_reached"}
 
 
@@ -85,6 +87,14 @@ class Recorder:
         rospy.Subscriber("planner/bspline", Bspline, self._on_bspline, queue_size=1000)
         rospy.Subscriber("tracker/track_bspline/status", GoalStatusArray, self._on_status, queue_size=100)
         rospy.Subscriber("sim/stats", SimStats, self._on_stats, queue_size=10)
+        self.yaw: list[tuple[float, float]] = []  # (stamp, heading) of every odometry message
+        rospy.Subscriber("odom", Odometry, self._on_odom, queue_size=1000)
+
+    def _on_odom(self, m: Odometry) -> None:
+        q = m.pose.pose.orientation
+        yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+        with self.lock:
+            self.yaw.append((m.header.stamp.to_sec(), yaw))
 
     def _on_decision(self, m: PolicyDecision) -> None:
         with self.lock:
@@ -123,6 +133,12 @@ class InferFlight(unittest.TestCase):
         max_vel = rospy.get_param("~max_vel_mps", None)
         if max_vel is not None:
             config["safety"]["max_vel_mps"] = float(max_vel)
+        # ~turn_after_stops (optional): turning in place from that many stops in a row on, at 90 deg/s,
+        # without a back-off (every proposal refused: the vehicle turns on the spot for the rest of the
+        # episode).
+        turn_after = int(rospy.get_param("~turn_after_stops", 0))
+        if turn_after:
+            config["recovery"].update(turn_after_stops=turn_after, turn_rate_dps=90.0, turn_clearance_m=0.0)
         (work / "policy.yaml").write_text(yaml.safe_dump(config))
         rospy.set_param("/policy_node/config", str(work / "policy.yaml"))
         rospy.set_param("/policy_node/policy_file", str(policy_path))
@@ -153,6 +169,7 @@ class InferFlight(unittest.TestCase):
             with rec.lock:
                 decisions = list(rec.decisions)
                 bsplines = dict(rec.bsplines)
+                yaw = list(rec.yaw)
                 goal_ids = set(rec.tracker_goal_ids)
                 stats = rec.stats
         finally:
@@ -170,7 +187,8 @@ class InferFlight(unittest.TestCase):
         for d in decided:
             self.assertIn(d.verdict, VERDICTS)
             self.assertTrue(d.reason.startswith(d.verdict), d.reason)
-            self.assertEqual(d.action, "policy" if d.accepted else "stop")  # refusal.action: stop
+            if not turn_after:
+                self.assertEqual(d.action, "policy" if d.accepted else "stop")  # refusal.action: stop
             self.assertGreater(d.traj_id, 0)
             self.assertGreater(d.decision_ms, 0.0)
             self.assertAlmostEqual(d.decision_ms, d.preprocess_ms + d.forward_ms + d.message_ms, places=6)
@@ -204,6 +222,31 @@ class InferFlight(unittest.TestCase):
         self.assertLessEqual(last.tracker_rejections, len(decided))
         if max_vel is not None and float(max_vel) < 0.5:
             self.assertTrue(all(d.verdict == "velocity_limit" for d in decided))
+        if turn_after:
+            # Every proposal is refused: the first turn_after - 1 stops only stop, every later one turns, its
+            # B-spline carries the heading on the position's knots, and the vehicle turned on the spot.
+            self.assertTrue(all(not d.accepted for d in decided))
+            self.assertEqual(events.get("turning"), len(decided) - turn_after + 1, events)
+            actions = [d.action for d in decided]
+            self.assertEqual(
+                actions, ["stop"] * (turn_after - 1) + ["turn"] * (len(decided) - turn_after + 1)
+            )
+            for d in decided:
+                b = bsplines[d.traj_id]
+                if d.action == "turn":
+                    self.assertIn("turning in place at 90 deg/s, backing off 0.00 m", d.reason)
+                    self.assertEqual(len(b.yaw_pts), 4)
+                    self.assertAlmostEqual(b.yaw_dt, b.knots[4] - b.knots[3], places=9)
+                    self.assertAlmostEqual(
+                        b.yaw_pts[2] - b.yaw_pts[1], math.radians(90.0) * b.yaw_dt, places=9
+                    )
+                else:
+                    self.assertEqual((len(b.yaw_pts), b.yaw_dt), (0, 0.0))
+            t0 = decided[turn_after - 1].header.stamp.to_sec()
+            headings = np.unwrap([h for t, h in yaw if t >= t0])
+            turned = float(np.degrees(np.ptp(headings)))
+            rospy.loginfo(f"infer_flight ({controller}): turned {turned:.0f} deg in place")
+            self.assertGreater(turned, 90.0)
         # Lockstep: the simulator never waited in vain for an acknowledgement.
         self.assertIsNotNone(stats)
         self.assertEqual(stats.lockstep_ack_timeouts, 0)
