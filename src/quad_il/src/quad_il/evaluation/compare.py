@@ -1,0 +1,151 @@
+"""Paired comparison of two closed-loop evaluations of the same episodes (docs/inference.md, "Comparing two
+evaluations").
+
+The evaluation repeats episode for episode, so two runs that differ in one thing (policy file, policy config)
+can be compared pair by pair instead of by their rates alone:
+
+    python -m quad_il.evaluation.compare results/A results/B [--controller cpp] [--out FILE.md]
+
+Prints (and with --out writes) a Markdown summary: the outcome counts of each run, how many episodes flew
+identically (same outcome and the same 10 Hz trajectory), the episodes whose outcome differs, goals gained and
+lost, and the exact two-sided McNemar test on the discordant goal pairs (the probability of a split at least
+this uneven if the change did not matter). Exit status 2 when the runs hold different episodes or a results
+file is missing or incomplete.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from quad_il.evaluation.episodes import EpisodeResult, read_episodes, read_results
+
+OUTCOME_ORDER = ("goal_reached", "collision", "timeout")
+
+
+class CompareError(ValueError):
+    """The two evaluations cannot be paired; the message says why."""
+
+
+@dataclass(frozen=True)
+class Comparison:
+    controller: str
+    episodes: int
+    counts_a: dict[str, int]
+    counts_b: dict[str, int]
+    identical: int  # same outcome and the same trajectory
+    changed: list[tuple[int, int, str, str]]  # (index, seed, outcome in A, outcome in B)
+    goals_gained: int  # reached in B only
+    goals_lost: int  # reached in A only
+    mcnemar_p: float
+
+
+def mcnemar_exact_p(gained: int, lost: int) -> float:
+    """Exact two-sided McNemar p-value: 2 P(X <= min(b, c)), X ~ Binomial(b + c, 1/2), capped at 1."""
+    if gained < 0 or lost < 0:
+        raise ValueError("counts must be >= 0")
+    n = gained + lost
+    if n == 0:
+        return 1.0
+    tail = sum(math.comb(n, k) for k in range(min(gained, lost) + 1)) / 2.0**n
+    return min(1.0, 2.0 * tail)
+
+
+def _load(run: Path, controller: str) -> tuple[list, dict[int, EpisodeResult]]:
+    episodes_file = run / "episodes.json"
+    if not episodes_file.is_file():
+        raise CompareError(f"{run}: no episodes.json (not a run_eval output directory)")
+    results_file = run / f"{controller}.jsonl"
+    if not results_file.is_file():
+        raise CompareError(f"{run}: no {controller}.jsonl (was the {controller} controller evaluated?)")
+    specs = read_episodes(episodes_file)
+    results = {r.index: r for r in read_results(results_file) if r.controller == controller}
+    missing = [s.index for s in specs if s.index not in results]
+    if missing:
+        raise CompareError(
+            f"{results_file}: {len(missing)} of {len(specs)} episodes have no result (e.g. index "
+            f"{missing[0]}); finish the run (run_eval resumes) before comparing"
+        )
+    return specs, results
+
+
+def compare(run_a: str | Path, run_b: str | Path, controller: str = "cpp") -> Comparison:
+    a_dir, b_dir = Path(run_a), Path(run_b)
+    specs_a, a = _load(a_dir, controller)
+    specs_b, b = _load(b_dir, controller)
+    if specs_a != specs_b:
+        raise CompareError(
+            f"{a_dir} and {b_dir} hold different episodes (episodes.json differ): only evaluations of the "
+            "same seeds, episode count and start/goal settings pair up"
+        )
+
+    def count(results: dict[int, EpisodeResult]) -> dict[str, int]:
+        return {o: sum(r.outcome == o for r in results.values()) for o in OUTCOME_ORDER}
+
+    changed = []
+    identical = gained = lost = 0
+    for s in specs_a:
+        ra, rb = a[s.index], b[s.index]
+        if ra.outcome == rb.outcome and ra.trajectory == rb.trajectory:
+            identical += 1
+        if ra.outcome != rb.outcome:
+            changed.append((s.index, s.seed, ra.outcome, rb.outcome))
+        gained += rb.outcome == "goal_reached" and ra.outcome != "goal_reached"
+        lost += ra.outcome == "goal_reached" and rb.outcome != "goal_reached"
+    return Comparison(
+        controller,
+        len(specs_a),
+        count(a),
+        count(b),
+        identical,
+        changed,
+        gained,
+        lost,
+        mcnemar_exact_p(gained, lost),
+    )
+
+
+def markdown(c: Comparison, name_a: str, name_b: str) -> str:
+    lines = [
+        f"Paired comparison, controller `{c.controller}`, {c.episodes} episodes: "
+        f"A = `{name_a}`, B = `{name_b}`",
+        "",
+        "| run | " + " | ".join(OUTCOME_ORDER) + " |",
+        "|---|" + "---|" * len(OUTCOME_ORDER),
+        "| A | " + " | ".join(str(c.counts_a[o]) for o in OUTCOME_ORDER) + " |",
+        "| B | " + " | ".join(str(c.counts_b[o]) for o in OUTCOME_ORDER) + " |",
+        "",
+        f"- Flown identically (same outcome and trajectory): {c.identical} of {c.episodes}.",
+        f"- Goals gained in B: {c.goals_gained}; lost: {c.goals_lost}; exact McNemar p = {c.mcnemar_p:.3g}.",
+    ]
+    if c.changed:
+        lines += ["", "| episode | world seed | A | B |", "|---|---|---|---|"]
+        lines += [f"| {i} | {seed} | {oa} | {ob} |" for i, seed, oa, ob in c.changed]
+    else:
+        lines.append("- No episode changed its outcome.")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("run_a", help="run_eval output directory (the baseline)")
+    ap.add_argument("run_b", help="run_eval output directory of the same episodes (the variant)")
+    ap.add_argument("--controller", default="cpp", choices=("expert", "py", "cpp"))
+    ap.add_argument("--out", default="", help="also write the summary to this Markdown file")
+    args = ap.parse_args(argv)
+    try:
+        text = markdown(compare(args.run_a, args.run_b, args.controller), args.run_a, args.run_b)
+    except (CompareError, ValueError, OSError) as e:
+        print(f"compare: {e}", file=sys.stderr)
+        return 2
+    print(text, end="")
+    if args.out:
+        Path(args.out).write_text(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
