@@ -267,6 +267,37 @@ def test_safety_layer_verdicts_agree_for_every_refusal_reason(run_both) -> None:
     assert set(py_verdicts) == {int(v) for v in SafetyVerdict}, py_verdicts
 
 
+def _hover_scene(
+    tmp_path: Path,
+    depth: np.ndarray,
+    p: np.ndarray,
+    q: np.ndarray,
+    goals: np.ndarray,
+    replace: dict[str, str],
+) -> tuple[DecisionFixture, Path]:
+    """A fixture of frames 0.1 s apart seen by a vehicle hovering at p with attitude q (x, y, z, w), one goal
+    per frame, and config/policy.yaml with the given text replacements; both written under tmp_path."""
+    n = len(depth)
+    fx = DecisionFixture(
+        depth_m=depth,
+        stamp_s=1.0 + 0.1 * np.arange(n),
+        p_world_body=np.tile(p, (n, 1)),
+        v_world=np.zeros((n, 3)),
+        q_world_body=np.tile(q, (n, 1)),
+        goal_world=np.asarray(goals, dtype=np.float64),
+        camera_k=CAMERA_K,
+        T_body_camera=T_BODY_CAMERA,
+    )
+    write_fixture(tmp_path / "fx", fx)
+    text = CONFIG.read_text()
+    for old, new in replace.items():
+        assert old in text, old
+        text = text.replace(old, new)
+    config = tmp_path / "policy.yaml"
+    config.write_text(text)
+    return fx, config
+
+
 def test_recovery_and_steering_succeed_alike_with_a_goal_seeking_policy(tmp_path: Path) -> None:
     """Random networks never give a turned plan that passes; a goal-seeking test double does.
 
@@ -280,22 +311,16 @@ def test_recovery_and_steering_succeed_alike_with_a_goal_seeking_policy(tmp_path
     depth[1][:, 35:45] = 1.2
     depth[2][:, 35:45] = 2.2
     depth[3][:, 35:45] = 2.0
-    fx = DecisionFixture(
-        depth_m=depth,
-        stamp_s=1.0 + 0.1 * np.arange(n),
-        p_world_body=np.tile([0.0, 0.0, 1.5], (n, 1)),
-        v_world=np.zeros((n, 3)),
-        q_world_body=np.tile([0.0, 0.0, 0.0, 1.0], (n, 1)),
-        goal_world=np.tile([10.0, 0.0, 1.5], (n, 1)),
-        camera_k=CAMERA_K,
-        T_body_camera=T_BODY_CAMERA,
-    )
-    write_fixture(tmp_path / "fx", fx)
-    config = tmp_path / "policy.yaml"
-    config.write_text(
-        CONFIG.read_text()
-        .replace("goal_yaw_offsets_deg: []", "goal_yaw_offsets_deg: [60.0, 10.0, 20.0, -20.0]")
-        .replace("steer_clearance_m: 0.0", "steer_clearance_m: 0.9")
+    fx, config = _hover_scene(
+        tmp_path,
+        depth,
+        np.array([0.0, 0.0, 1.5]),
+        np.array([0.0, 0.0, 0.0, 1.0]),
+        np.tile([10.0, 0.0, 1.5], (n, 1)),
+        {
+            "goal_yaw_offsets_deg: []": "goal_yaw_offsets_deg: [60.0, 10.0, 20.0, -20.0]",
+            "steer_clearance_m: 0.0": "steer_clearance_m: 0.9",
+        },
     )
     cfg = load_policy_config(config)
     cpp = _replay(policy_path, tmp_path / "fx", config, tmp_path / "cpp")
@@ -330,23 +355,17 @@ def test_turning_in_place_turns_alike_in_both_deciders(tmp_path: Path) -> None:
         depth[i][:, 30:50] = 1.2
     p = np.array([1.0, 2.0, 1.5])
     goal_side = [-1.5] * 5 + [1.5] * 3
-    fx = DecisionFixture(
-        depth_m=depth,
-        stamp_s=1.0 + 0.1 * np.arange(n),
-        p_world_body=np.tile(p, (n, 1)),
-        v_world=np.zeros((n, 3)),
-        q_world_body=np.tile([0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2)], (n, 1)),
-        goal_world=np.array([p + 10.0 * ahead + s * side for s in goal_side]),
-        camera_k=CAMERA_K,
-        T_body_camera=T_BODY_CAMERA,
-    )
-    write_fixture(tmp_path / "fx", fx)
-    config = tmp_path / "policy.yaml"
-    config.write_text(
-        CONFIG.read_text()
-        .replace("turn_after_stops: 0", "turn_after_stops: 3")
-        .replace("turn_rate_dps: 45.0", "turn_rate_dps: 30.0")
-        .replace("turn_clearance_m: 0.8", "turn_clearance_m: 2.0")
+    fx, config = _hover_scene(
+        tmp_path,
+        depth,
+        p,
+        np.array([0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2)]),
+        np.array([p + 10.0 * ahead + s * side for s in goal_side]),
+        {
+            "turn_after_stops: 0": "turn_after_stops: 3",
+            "turn_rate_dps: 45.0": "turn_rate_dps: 30.0",
+            "turn_clearance_m: 0.8": "turn_clearance_m: 2.0",
+        },
     )
     cfg = load_policy_config(config)
     cpp = _replay(policy_path, tmp_path / "fx", config, tmp_path / "cpp")

@@ -24,12 +24,7 @@ class _DepthShift(GoalLinePolicy):
     def forward_prepared(
         self, depth_x: Tensor, p_world_body: Tensor, v_world: Tensor, q_world_body: Tensor, goal_world: Tensor
     ) -> Tensor:
-        k = self.num_ctrl_pts
-        dt = self.horizon_s / (k - 3)
-        d = goal_world - p_world_body
-        direction = d / torch.linalg.norm(d, dim=1, keepdim=True).clamp_min(1e-9)
-        tau = (torch.arange(k, dtype=p_world_body.dtype) - 1.0) * dt
-        ctrl = p_world_body.unsqueeze(1) + self.speed_mps * tau.view(1, k, 1) * direction.unsqueeze(1)
+        ctrl = self.goal_line(p_world_body, goal_world)
         shift = depth_x.mean(dim=(1, 2, 3)).view(-1, 1) * torch.tensor([0.0, 2.0, 0.0], dtype=ctrl.dtype)
         return self.codec.encode(ctrl + shift.unsqueeze(1), p_world_body, q_world_body)
 

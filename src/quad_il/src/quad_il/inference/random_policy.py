@@ -98,17 +98,20 @@ class GoalLinePolicy(Policy):
         super().__init__(model_cfg, num_ctrl_pts, horizon_s)
         self.speed_mps = float(speed_mps)
 
-    @torch.jit.export
-    def forward_prepared(
-        self, depth_x: Tensor, p_world_body: Tensor, v_world: Tensor, q_world_body: Tensor, goal_world: Tensor
-    ) -> Tensor:
+    def goal_line(self, p_world_body: Tensor, goal_world: Tensor) -> Tensor:
+        """(B, K, 3) world-frame control points of the straight line at the goal (subclasses reuse it)."""
         k = self.num_ctrl_pts
         dt = self.horizon_s / (k - 3)
         d = goal_world - p_world_body
         direction = d / torch.linalg.norm(d, dim=1, keepdim=True).clamp_min(1e-9)
         tau = (torch.arange(k, dtype=p_world_body.dtype, device=p_world_body.device) - 1.0) * dt
-        ctrl = p_world_body.unsqueeze(1) + self.speed_mps * tau.view(1, k, 1) * direction.unsqueeze(1)
-        return self.codec.encode(ctrl, p_world_body, q_world_body)
+        return p_world_body.unsqueeze(1) + self.speed_mps * tau.view(1, k, 1) * direction.unsqueeze(1)
+
+    @torch.jit.export
+    def forward_prepared(
+        self, depth_x: Tensor, p_world_body: Tensor, v_world: Tensor, q_world_body: Tensor, goal_world: Tensor
+    ) -> Tensor:
+        return self.codec.encode(self.goal_line(p_world_body, goal_world), p_world_body, q_world_body)
 
 
 def export_goal_line_policy(
