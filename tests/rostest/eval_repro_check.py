@@ -14,6 +14,7 @@ consumer costs a whole lockstep timeout).
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -81,6 +82,8 @@ class EvalReproTest(unittest.TestCase):
                 self.assertEqual(ra[key], rb[key], f"{c}: {key} differs between the two runs")
             if c != "expert":
                 self.assertGreater(ra["counts"].get("accepted", 0), 10, f"{c}: {ra['counts']}")
+        # Reached only when every check passed: a failing run keeps its logs for inspection.
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 if __name__ == "__main__":

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+import shutil
 import tempfile
 import threading
 import time
@@ -118,6 +119,8 @@ class InferFlight(unittest.TestCase):
         import roslaunch
 
         work = Path(tempfile.mkdtemp(prefix="infer_flight_"))
+        # The trained policy and its run directory (about 70 MB) are not needed after the test.
+        self.addCleanup(shutil.rmtree, work, True)
         policy_path = train_small_policy(work)
         _, meta = load_exported(policy_path)
         self.assertEqual(parse_policy_meta(meta, str(policy_path)).output_frame, "local")
