@@ -10,6 +10,7 @@ export with local state and output frames."""
 from __future__ import annotations
 
 import math
+import shutil
 import tempfile
 import threading
 import time
@@ -90,6 +91,7 @@ class InferNodeParity(unittest.TestCase):
         import roslaunch
 
         work = Path(tempfile.mkdtemp(prefix="infer_node_parity_"))
+        self.addCleanup(shutil.rmtree, work, True)
         model = ModelConfig(input_height=32, input_width=32, state_frame="local", output_frame="local")
         policy = export_random_policy(work / "policy.ts", model, seed=3)
         # The repository config with a replanning rate: frames come 0.1 s apart, every other one is decided.

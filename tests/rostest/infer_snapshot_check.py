@@ -6,6 +6,7 @@ the top-down view with the voxel map works too."""
 
 from __future__ import annotations
 
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -44,6 +45,7 @@ def snapshot(out: Path, *extra: str) -> Path:
 class InferSnapshot(unittest.TestCase):
     def test_snapshots_show_the_world(self) -> None:
         work = Path(tempfile.mkdtemp(prefix="infer_snapshot_"))
+        self.addCleanup(shutil.rmtree, work, True)
         world_png = snapshot(work / "world", "--times", "2")
         blank_png = snapshot(work / "blank", "--times", "2.5", "--blank")
         top_png = snapshot(work / "top", "--times", "3", "--view", "top", "--voxel-map")
