@@ -106,7 +106,7 @@ def test_summaries_rates_means_and_latency_percentiles(tmp_path: Path) -> None:
             "collision",
             min_clearance_m=-0.1,
             decision_ms=[3.0],
-            counts={"collision_in_depth": 4, "recovered": 3, "steered": 5},
+            counts={"collision_in_depth": 4, "recovered": 3, "steered": 5, "turning": 1},
         ),
         _result("cpp", 2, "timeout", min_clearance_m=0.8, decision_ms=[4.0]),
         _result("cpp", 3, "takeoff_failed"),
@@ -118,6 +118,7 @@ def test_summaries_rates_means_and_latency_percentiles(tmp_path: Path) -> None:
     assert s.decision_ms_median == 2.0 and s.decision_ms_p99 == 4.0
     assert s.refusals == 6 and s.recovered == 3  # recovered decisions stay counted as refusals
     assert s.steered == 5  # steered decisions are accepted ones: not refusals
+    assert s.turning == 1 and s.refusals == 6  # turning decisions are refusals already counted
     with pytest.raises(ValueError, match="no results"):
         summarise("py", rs)
     with pytest.raises(ValueError, match="outcome must be one of"):
@@ -148,7 +149,9 @@ def test_the_report_has_the_table_plots_and_bench_lines(
                     time_to_goal_s=9.0,
                     trajectory=traj,
                     decision_ms=[2.0, 2.5],
-                    counts={"collision_in_depth": 2, "recovered": 1, "steered": 7} if c == "cpp" else {},
+                    counts={"collision_in_depth": 2, "recovered": 1, "steered": 7, "turning": 3}
+                    if c == "cpp"
+                    else {},
                 ),
             )
     report = write_report(
@@ -162,8 +165,8 @@ def test_the_report_has_the_table_plots_and_bench_lines(
     assert "| expert (fast_planner) | 2 | 100 % | 0 % |" in text
     assert "| policy, C++ (LibTorch) | 2 | 0 % | 100 % |" in text
     assert "not run: quad_il/policy_node.py is not built" in text
-    assert "refusals (recovered) | steered |" in text
-    assert text.count("| 4 (2) | 14 |") == 1  # the C++ row, 2 episodes
+    assert "refusals (recovered) | steered | turning |" in text
+    assert text.count("| 4 (2) | 14 | 6 |") == 1  # the C++ row, 2 episodes
     for png in ("outcomes.png", "latency.png", "trajectories.png"):
         assert (tmp_path / png).stat().st_size > 0 and f"({png})" in text
     out = capsys.readouterr().out.splitlines()

@@ -88,6 +88,7 @@ class ControllerSummary:
     refusals: int
     recovered: int = 0  # refused decisions for which the recovery found a plan (config recovery)
     steered: int = 0  # accepted decisions replaced by a turned plan keeping recovery.steer_clearance_m
+    turning: int = 0  # stopping trajectories that turned the vehicle in place (recovery.turn_after_stops)
 
 
 def summarise(controller: str, results: Sequence[EpisodeResult]) -> ControllerSummary:
@@ -120,4 +121,5 @@ def summarise(controller: str, results: Sequence[EpisodeResult]) -> ControllerSu
         refusals=refusals,
         recovered=sum(r.counts.get("recovered", 0) for r in rs),
         steered=sum(r.counts.get("steered", 0) for r in rs),
+        turning=sum(r.counts.get("turning", 0) for r in rs),
     )

@@ -196,8 +196,8 @@ def write_report(
         "",
         "| controller | episodes | success | collision | timeout | reset/take-off failed | mean time to goal "
         "(s) | mean path length (m) | min clearance (m) | median min clearance (m) | decision ms median | "
-        "decision ms p99 | decisions | refusals (recovered) | steered |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "decision ms p99 | decisions | refusals (recovered) | steered | turning |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for c, s in summaries.items():
         lines.append(
@@ -206,10 +206,11 @@ def write_report(
             f"{_fmt(s.other_rate, pct=True)} | {_fmt(s.mean_time_to_goal_s, 1)} | "
             f"{_fmt(s.mean_path_length_m, 1)} | {_fmt(s.min_clearance_m)} | "
             f"{_fmt(s.median_min_clearance_m)} | {_fmt(s.decision_ms_median, 3)} | "
-            f"{_fmt(s.decision_ms_p99, 3)} | {s.decisions} | {s.refusals} ({s.recovered}) | {s.steered} |"
+            f"{_fmt(s.decision_ms_p99, 3)} | {s.decisions} | {s.refusals} ({s.recovered}) | {s.steered} | "
+            f"{s.turning} |"
         )
     for c, why in skipped.items():
-        lines.append(f"| {NAMES.get(c, c)} | not run: {why} ||||||||||||||")
+        lines.append(f"| {NAMES.get(c, c)} | not run: {why} |||||||||||||||")
     lines += [
         "",
         "Success, collision and timeout are shares of all episodes; time to goal and path length are means "
@@ -219,7 +220,9 @@ def write_report(
         "forward + message (policy/decision), expert map update + plan (planner/timing). Refusals: decisions "
         "whose policy plan the safety layer refused; recovered: of those, the ones the recovery (policy "
         "config `recovery`) replaced with an accepted plan for a turned goal. Steered: accepted decisions "
-        "replaced by a turned goal's plan that keeps `recovery.steer_clearance_m` from what the camera sees.",
+        "replaced by a turned goal's plan that keeps `recovery.steer_clearance_m` from what the camera sees. "
+        "Turning: refused decisions whose stopping trajectory turned the vehicle in place "
+        "(`recovery.turn_after_stops`; they stay counted as refusals).",
         "",
     ]
     if summaries:
