@@ -78,7 +78,7 @@ def train_small_policy(out_dir: Path) -> Path:
 
 
 class Recorder:
-    def __init__(self) -> None:
+    def __init__(self, record_heading: bool = False) -> None:
         self.lock = threading.Lock()
         self.decisions: list[PolicyDecision] = []
         self.bsplines: dict[int, Bspline] = {}
@@ -89,7 +89,8 @@ class Recorder:
         rospy.Subscriber("tracker/track_bspline/status", GoalStatusArray, self._on_status, queue_size=100)
         rospy.Subscriber("sim/stats", SimStats, self._on_stats, queue_size=10)
         self.yaw: list[tuple[float, float]] = []  # (stamp, heading) of every odometry message
-        rospy.Subscriber("odom", Odometry, self._on_odom, queue_size=1000)
+        if record_heading:  # 200 Hz: only when the test needs it (it loads this process)
+            rospy.Subscriber("odom", Odometry, self._on_odom, queue_size=1000)
 
     def _on_odom(self, m: Odometry) -> None:
         q = m.pose.pose.orientation
@@ -129,7 +130,8 @@ class InferFlight(unittest.TestCase):
         pkg, node_type = {"cpp": ("quad_policy", "policy_node"), "py": ("quad_il", "policy_node.py")}[
             controller
         ]
-        rec = Recorder()
+        turn_after = int(rospy.get_param("~turn_after_stops", 0))
+        rec = Recorder(record_heading=turn_after > 0)
         # ~max_vel_mps (optional) overrides the safety layer's speed limit: a low one makes it refuse every
         # proposal, so the stopping trajectories go to the tracker instead.
         config = yaml.safe_load(Path(rospy.get_param("~policy_config")).read_text())
@@ -139,7 +141,6 @@ class InferFlight(unittest.TestCase):
         # ~turn_after_stops (optional): turning in place from that many stops in a row on, at 90 deg/s,
         # without a back-off (every proposal refused: the vehicle turns on the spot for the rest of the
         # episode).
-        turn_after = int(rospy.get_param("~turn_after_stops", 0))
         if turn_after:
             config["recovery"].update(turn_after_stops=turn_after, turn_rate_dps=90.0, turn_clearance_m=0.0)
         (work / "policy.yaml").write_text(yaml.safe_dump(config))

@@ -97,8 +97,9 @@ class PolicyNode {
     goal_sub_ = nh_.subscribe("planner/goal", 10, &PolicyNode::OnGoal, this, hints);
     info_sub_ = nh_.subscribe("camera/depth/camera_info", 2, &PolicyNode::OnCameraInfo, this, hints);
     status_sub_ = nh_.subscribe("sim/status", 10, &PolicyNode::OnStatus, this, hints);
-    bspline_pub_ = nh_.advertise<quad_msgs::Bspline>("planner/bspline", 10);
-    proposal_pub_ = nh_.advertise<quad_msgs::Bspline>("policy/proposal", 10);
+    // 100 like the decisions: a recorder that falls behind (3 s at 30 Hz) still gets every trajectory.
+    bspline_pub_ = nh_.advertise<quad_msgs::Bspline>("planner/bspline", 100);
+    proposal_pub_ = nh_.advertise<quad_msgs::Bspline>("policy/proposal", 100);
     decision_pub_ = nh_.advertise<quad_msgs::PolicyDecision>("policy/decision", 100);
     ack_pub_ = nh_.advertise<quad_msgs::FrameAck>("sim/frame_ack", 100);
     status_pub_ = nh_.advertise<std_msgs::String>("policy/status", 10, true);

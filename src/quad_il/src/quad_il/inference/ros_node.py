@@ -108,8 +108,9 @@ class PolicyNode:
 
         self.tf_buffer = tf2_ros.Buffer()
         self.tf_listener = tf2_ros.TransformListener(self.tf_buffer)
-        self.bspline_pub = rospy.Publisher("planner/bspline", Bspline, queue_size=10)
-        self.proposal_pub = rospy.Publisher("policy/proposal", Bspline, queue_size=10)
+        # 100 like the decisions: a recorder that falls behind (3 s at 30 Hz) still gets every trajectory.
+        self.bspline_pub = rospy.Publisher("planner/bspline", Bspline, queue_size=100)
+        self.proposal_pub = rospy.Publisher("policy/proposal", Bspline, queue_size=100)
         self.decision_pub = rospy.Publisher("policy/decision", PolicyDecision, queue_size=100)
         self.ack_pub = rospy.Publisher("sim/frame_ack", FrameAck, queue_size=100)
         self.status_pub = rospy.Publisher("policy/status", String, queue_size=10, latch=True)
