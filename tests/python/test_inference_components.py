@@ -22,8 +22,9 @@ from quad_il.inference.config import (
     config_from_tree,
     load_policy_config,
 )
-from quad_il.inference.decider import DecisionInputs, PolicyDecider, turned_goal, yaw_of
+from quad_il.inference.decider import DecisionInputs, PolicyDecider, turned_goal
 from quad_il.inference.fixture import DecisionFixture, FixtureError, read_fixture, write_fixture
+from quad_il.inference.geometry import yaw_of
 from quad_il.inference.meta import PolicyFormatError, parse_policy_meta
 from quad_il.inference.policy import LoadedPolicy
 from quad_il.inference.preprocessing import PolicyPreprocessing, as_row

@@ -47,14 +47,9 @@ PolicyNodeConfig Load(quad_common::StrictYaml y) {
   c.safety.sample_dt_s = y.Get<double>("safety.sample_dt_s", Positive());
   c.safety.check_horizon_s = y.Get<double>("safety.check_horizon_s", NonNegative());
   c.safety.collision_min_pixels = y.Get<int>("safety.collision_min_pixels", AtLeast(1));
-  if (c.recovery.turn_after_stops > 0 && c.refusal.action != RefusalAction::kStop) {
-    throw quad_common::ConfigError(
-        y.source() +
-        ": key 'recovery.turn_after_stops' is set but 'refusal.action' is not 'stop' "
-        "(the turn rides on the stopping trajectory)");
-  }
   try {
     ValidateRecoveryConfig(c.recovery, c.safety);
+    ValidateTurning(c.recovery, c.refusal);
   } catch (const std::invalid_argument& e) {
     throw quad_common::ConfigError(y.source() + ": " + e.what());
   }

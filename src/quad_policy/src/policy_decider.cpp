@@ -86,6 +86,14 @@ void ValidateRecoveryConfig(const RecoveryConfig& r, const SafetyConfig& safety)
   }
 }
 
+void ValidateTurning(const RecoveryConfig& r, const RefusalConfig& refusal) {
+  if (r.turn_after_stops > 0 && refusal.action != RefusalAction::kStop) {
+    throw std::invalid_argument(
+        "recovery.turn_after_stops is set but refusal.action is not 'stop' (the turn rides on the stopping "
+        "trajectory)");
+  }
+}
+
 PolicyDecider::PolicyDecider(std::shared_ptr<const TorchPolicy> policy, const SafetyConfig& safety,
                              const RefusalConfig& refusal, const RecoveryConfig& recovery)
     : policy_(std::move(policy)),
@@ -96,10 +104,7 @@ PolicyDecider::PolicyDecider(std::shared_ptr<const TorchPolicy> policy, const Sa
   ValidateSafetyConfig(safety_);
   ValidateRefusal(refusal_);
   ValidateRecoveryConfig(recovery_, safety_);
-  if (recovery_.turn_after_stops > 0 && refusal_.action != RefusalAction::kStop) {
-    throw std::invalid_argument(
-        "recovery.turn_after_stops needs refusal.action stop (the turn rides on the stopping trajectory)");
-  }
+  ValidateTurning(recovery_, refusal_);
 }
 
 void PolicyDecider::Reset() {

@@ -227,7 +227,7 @@ TEST(PolicyNodeConfig, TurningInPlaceIsReadAndBadValuesNamed) {
   hover.replace(hover.find("action: stop"), 12, "action: hover");
   EXPECT_NE(ErrorOf([&] {
               PolicyNodeConfigFromString(hover, "c");
-            }).find("'recovery.turn_after_stops' is set but 'refusal.action' is not 'stop'"),
+            }).find("recovery.turn_after_stops is set but refusal.action is not 'stop'"),
             std::string::npos);
   hover = RepoConfigWith("action: stop", "action: hover");  // off: hover is fine
   EXPECT_NO_THROW(PolicyNodeConfigFromString(hover, "c"));

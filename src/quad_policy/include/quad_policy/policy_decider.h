@@ -59,6 +59,9 @@ struct RecoveryConfig {
 // non-zero steer_clearance_m exceeds safety.vehicle_radius_m and has turns to try.
 void ValidateRecoveryConfig(const RecoveryConfig& recovery);
 void ValidateRecoveryConfig(const RecoveryConfig& recovery, const SafetyConfig& safety);
+// Turning in place rides on the stopping trajectory: throws std::invalid_argument when turn_after_stops is
+// set and the refusal action is not kStop.
+void ValidateTurning(const RecoveryConfig& recovery, const RefusalConfig& refusal);
 
 // The goal turned by yaw_deg about the vertical axis through the vehicle (same distance and height).
 Eigen::Vector3d TurnedGoal(const Eigen::Vector3d& p_world_body, const Eigen::Vector3d& goal_world,

@@ -23,6 +23,7 @@ from quad_il.inference.config import (
     check_turning,
 )
 from quad_il.inference.fixture import DecisionFixture
+from quad_il.inference.geometry import yaw_of
 from quad_il.inference.policy import LoadedPolicy
 from quad_il.inference.preprocessing import PolicyPreprocessing, as_row
 from quad_il.inference.safety import (
@@ -110,13 +111,6 @@ def turned_goal(p_world_body: FloatArray, goal_world: FloatArray, yaw_deg: float
     p = np.asarray(p_world_body, dtype=np.float64).reshape(3)
     d = np.asarray(goal_world, dtype=np.float64).reshape(3) - p
     return p + np.array([c * d[0] - s * d[1], s * d[0] + c * d[1], d[2]])
-
-
-def yaw_of(q_world_body: FloatArray) -> float:
-    """Heading (rad) of the body x axis of the quaternion (x, y, z, w), as the C++ twin (rotation matrix)."""
-    x, y, z, w = (float(c) for c in np.asarray(q_world_body, dtype=np.float64).reshape(4))
-    n = x * x + y * y + z * z + w * w
-    return math.atan2(2.0 * (x * y + w * z) / n, 1.0 - 2.0 * (y * y + z * z) / n)
 
 
 class PolicyDecider:
@@ -210,7 +204,7 @@ class PolicyDecider:
             self.stops_in_row += 1
             n = self.recovery.turn_after_stops
             if n > 0 and self.stops_in_row >= n:
-                yaw = yaw_of(inp.q_world_body)
+                yaw = yaw_of(np.asarray(inp.q_world_body, dtype=np.float64).reshape(4))
                 p0 = np.asarray(inp.p_world_body, np.float64).reshape(3)
                 if self.turn_sign == 0:
                     # Towards the side the goal lies on (left when straight ahead or behind).

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -26,3 +28,10 @@ def pose_matrix(p: FloatArray, q_xyzw: FloatArray) -> FloatArray:
     T[:3, :3] = rotation_matrix(q_xyzw)
     T[:3, 3] = np.asarray(p, dtype=np.float64)
     return T
+
+
+def yaw_of(q_xyzw: FloatArray) -> float:
+    """Heading (rad) of the body x axis: atan2 of rotation_matrix's (1, 0) and (0, 0) entries, as the C++
+    decider computes it from Eigen's rotation matrix."""
+    r = rotation_matrix(q_xyzw)
+    return math.atan2(float(r[1, 0]), float(r[0, 0]))
