@@ -411,6 +411,45 @@ def test_prior_is_not_in_the_state_dict_so_older_checkpoints_load() -> None:
     assert new.net.prior.abs().sum() > 0
 
 
+def test_depth_grid_is_the_nearest_surface_per_cell_in_row_major_order() -> None:
+    net = PolicyNet("small", out_dim=30, depth_grid=(2, 3))
+    depth_x = torch.ones(2, 1, 8, 12)  # everything at max_depth_m: nearness 0
+    depth_x[0, 0, 1, 5] = 0.25  # row cell 0, column cell 1 (columns 4-7)
+    depth_x[0, 0, 2, 4] = 0.5  # the same cell, farther: the nearer one counts
+    depth_x[0, 0, 7, 11] = 0.0  # row cell 1, column cell 2: a surface at the camera
+    depth_x[1, 0, 4:, :4] = 0.75  # a whole cell of the second sample
+    grid = net.grid_features(depth_x)
+    expected = torch.tensor([[0.0, 0.75, 0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0, 0.25, 0.0, 0.0]])
+    torch.testing.assert_close(grid, expected)
+
+
+def test_depth_grid_feeds_the_planning_mlp_and_changes_the_plan() -> None:
+    torch.manual_seed(0)
+    plain = PolicyNet("small", out_dim=30)
+    gridded = PolicyNet("small", out_dim=30, depth_grid=(8, 8))
+    assert gridded.planning_mlp[0].in_features == plain.planning_mlp[0].in_features + 64 == 128
+    gridded.eval()
+    depth_x, state_x = torch.ones(1, 1, 96, 96), torch.zeros(1, 13)
+    near = depth_x.clone()
+    near[0, 0, 40:50, 40:50] = 0.1
+    # Zero the backbone's path so that only the grid can see the box.
+    for layer in gridded.depth_mlp.modules():
+        if isinstance(layer, torch.nn.Linear):
+            torch.nn.init.zeros_(layer.weight)
+            torch.nn.init.zeros_(layer.bias)
+    with torch.no_grad():
+        assert not torch.allclose(gridded(near, state_x), gridded(depth_x, state_x))
+
+
+def test_depth_grid_config_is_checked_with_a_clear_message() -> None:
+    assert ModelConfig().depth_grid == []  # off by default: the thesis's network, older configs load
+    for bad in ([8], [8, 8, 1], [0, 4], [4, 97]):
+        with pytest.raises(ValueError, match=r"model.depth_grid must be \[\] or \[rows, cols\]"):
+            ModelConfig(depth_grid=bad)
+    with pytest.raises(ValueError, match="depth_grid must be"):
+        PolicyNet("small", out_dim=30, depth_grid=(0, 3))
+
+
 # ------------------------------------------------------------------------------------------------ TorchScript
 def make_backbone_head_matter(policy: Policy, seed: int) -> Policy:
     """A trained-like state for fold and export tests (eval mode on return).
@@ -470,6 +509,7 @@ def net_inputs(policy: Policy, b: int, seed: int) -> tuple[torch.Tensor, torch.T
         {"variant": "large"},
         {"state_frame": "local", "output_frame": "local", "output": "polynomial", "poly_degree": 4},
         {"state_frame": "local", "output_frame": "local", "output_prior": "constant_velocity"},
+        {"state_frame": "local", "output_frame": "local", "depth_grid": [4, 5]},
     ],
 )
 def test_torchscript_export_equals_eager_policy(tmp_path: Path, kw: dict[str, object]) -> None:

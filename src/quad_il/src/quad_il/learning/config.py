@@ -69,6 +69,10 @@ class ModelConfig(_Strict):
     position_scale_m: float = Field(10.0, gt=0.0)
     velocity_scale_mps: float = Field(3.0, gt=0.0)
     velocity_input: bool = True  # false: the state's velocity entries are zero (no copying of the motion)
+    # [rows, cols]: also give the planning MLP the nearest surface of each cell of a coarse grid over the
+    # preprocessed depth (max-pooled nearness 1 - depth / max_depth_m), beside the backbone's features.
+    # [] = off (the thesis's network). docs/learning.md, "Depth grid".
+    depth_grid: list[int] = Field(default_factory=list)
 
     @model_validator(mode="after")
     def _widths_positive(self) -> ModelConfig:
@@ -76,6 +80,16 @@ class ModelConfig(_Strict):
             widths = getattr(self, key)
             if any(w < 1 for w in widths):
                 raise ValueError(f"model.{key}: every width must be >= 1, got {widths}")
+        if self.depth_grid and (
+            len(self.depth_grid) != 2
+            or not 1 <= self.depth_grid[0] <= self.input_height
+            or not 1 <= self.depth_grid[1] <= self.input_width
+        ):
+            raise ValueError(
+                f"model.depth_grid must be [] or [rows, cols] with 1 <= rows <= input_height "
+                f"({self.input_height}) and 1 <= cols <= input_width ({self.input_width}), "
+                f"got {self.depth_grid}"
+            )
         if self.output_prior != "none" and not self.velocity_input:
             raise ValueError(
                 "model.output_prior: the constant-velocity prior needs model.velocity_input: true"

@@ -6,6 +6,9 @@
         -> planning MLP [64, 128, 128] -> Linear -> flat B-spline (K x 3) or polynomial coefficients
         (+ optionally a fixed linear map of the state: model.output_prior = constant_velocity)
 
+    optionally (model.depth_grid = [r, c]): depth -> max-pooled nearness on an r x c grid -> flattened, a
+    third input of the planning MLP (the nearest surface in each cell, not to be learnt from pixels)
+
 ReLU after every hidden layer of the three MLPs (the thesis: "All networks use ReLU"); the final Linear has
 none.
 
@@ -18,6 +21,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
 
 from quad_il.learning.config import ModelConfig
@@ -54,14 +58,21 @@ class PolicyNet(nn.Module):
         planning_mlp: Sequence[int] = (64, 128, 128),
         state_dim: int = STATE_DIM,
         prior: Tensor | None = None,
+        depth_grid: Sequence[int] = (),
     ) -> None:
         super().__init__()
+        if len(depth_grid) not in (0, 2) or any(int(n) < 1 for n in depth_grid):
+            raise ValueError(f"depth_grid must be () or (rows, cols) >= 1, got {tuple(depth_grid)}")
+        # Top-level ints (not a tuple) so TorchScript sees a plain, constant-size grid.
+        self.grid_rows = int(depth_grid[0]) if depth_grid else 0
+        self.grid_cols = int(depth_grid[1]) if depth_grid else 0
         self.backbone = MobileNetV3(
             variant, in_channels=1, num_classes=backbone_out, dropout=backbone_dropout
         )
         self.depth_mlp = mlp(backbone_out, depth_mlp)
         self.state_mlp = mlp(state_dim, state_mlp)
-        self.planning_mlp = mlp(depth_mlp[-1] + state_mlp[-1], planning_mlp)
+        grid_dim = self.grid_rows * self.grid_cols
+        self.planning_mlp = mlp(depth_mlp[-1] + state_mlp[-1] + grid_dim, planning_mlp)
         self.head = nn.Linear(planning_mlp[-1], out_dim)
         for m in [self.depth_mlp, self.state_mlp, self.planning_mlp, self.head]:
             for layer in m.modules():
@@ -80,8 +91,18 @@ class PolicyNet(nn.Module):
     def forward(self, depth_x: Tensor, state_x: Tensor) -> Tensor:
         f_depth = self.depth_mlp(self.backbone(depth_x))
         f_state = self.state_mlp(state_x)
-        y = self.head(self.planning_mlp(torch.cat([f_depth, f_state], dim=1)))
+        if self.grid_rows > 0:
+            feats = torch.cat([f_depth, f_state, self.grid_features(depth_x)], dim=1)
+        else:
+            feats = torch.cat([f_depth, f_state], dim=1)
+        y = self.head(self.planning_mlp(feats))
         return y + torch.matmul(state_x, self.prior.t())
+
+    def grid_features(self, depth_x: Tensor) -> Tensor:
+        """(B,1,h,w) preprocessed depth in [0, 1] -> (B, rows*cols): per cell, 1 - the smallest depth (0 = all
+        at max_depth_m or beyond, 1 = a surface at the camera). Row-major, image rows top to bottom."""
+        near = F.adaptive_max_pool2d(1.0 - depth_x, [self.grid_rows, self.grid_cols])
+        return near.flatten(1)
 
 
 class Policy(nn.Module):
@@ -120,6 +141,7 @@ class Policy(nn.Module):
             cfg.state_mlp,
             cfg.planning_mlp,
             prior=prior,
+            depth_grid=cfg.depth_grid,
         )
         # Top-level copies of the interface parameters: preserved as attributes of the frozen TorchScript
         # file.
