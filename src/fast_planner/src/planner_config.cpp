@@ -118,6 +118,7 @@ PlannerConfig ReadPlannerConfig(StrictYaml& y) {
   f.goal_tolerance_m = y.Get<double>("fsm.goal_tolerance_m", Positive());
   f.stopped_speed_mps = y.Get<double>("fsm.stopped_speed_mps", Positive());
   f.max_consecutive_failures = y.Get<int>("fsm.max_consecutive_failures", AtLeast(1));
+  f.replan_final_approach = y.Get<bool>("fsm.replan_final_approach");
 
   y.CheckAllKeysUsed();
   ValidatePlannerConfig(c);

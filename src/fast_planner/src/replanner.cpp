@@ -85,7 +85,8 @@ ReplannerOutput Replanner::Step(double now_s) {
         // A local trajectory running out at speed; or one ending at rest (at a safe stop, or at the goal with
         // the vehicle out of tolerance) that has ended.
         Feed(FsmEvent::kTrajectoryEndingShortOfGoal, now_s, &out);
-      } else if (!cur.reaches_goal &&
+      } else if ((!cur.reaches_goal ||
+                  (cfg_.fsm.replan_final_approach && to_goal > cfg_.fsm.replan_distance_m)) &&
                  (odom->p_world_body - last_plan_start_).norm() >= cfg_.fsm.replan_distance_m) {
         Feed(FsmEvent::kReplanDistanceTravelled, now_s, &out);
       }

@@ -46,6 +46,16 @@ TEST(PlannerConfigTest, DefaultFileHasThePaperDefaults) {
   EXPECT_EQ(c.map.resolution_m, 0.1);
   EXPECT_EQ(c.optimizer.ctrl_pt_dist_m, 0.5);
   EXPECT_EQ(c.map.source, MapSource::kDepth);
+  EXPECT_TRUE(c.fsm.replan_final_approach);  // ours, for datasets that cover the final approach
+}
+
+TEST(PlannerConfigTest, FinalApproachSwitchIsABoolean) {
+  EXPECT_FALSE(FromText(Edited("replan_final_approach: true", "replan_final_approach: false"))
+                   .fsm.replan_final_approach);
+  ExpectConfigError(Edited("replan_final_approach: true", "replan_final_approach: 2"),
+                    "fsm.replan_final_approach");
+  ExpectConfigError(Edited("  replan_final_approach: true", "  #"),
+                    "missing required key 'fsm.replan_final_approach'");
 }
 
 TEST(PlannerConfigTest, UnknownKeyIsAnErrorNamingIt) {

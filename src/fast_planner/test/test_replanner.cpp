@@ -26,6 +26,7 @@ struct FlightLog {
   std::optional<std::string> abandoned;
   std::vector<std::string> transitions;
   int plans = 0;
+  std::vector<double> goal_reaching_plan_distances;  // distance to the goal at each plan that reaches it
   double min_box_distance = std::numeric_limits<double>::infinity();
   double duration_s = 0.0;
 };
@@ -33,12 +34,16 @@ struct FlightLog {
 FlightLog Fly(Replanner* rp, const std::vector<test::Aabb>& world, const Eigen::Vector3d& start,
               const Eigen::Vector3d& goal, double max_time_s, bool render_depth = true) {
   FlightLog log;
+  Odometry odom;
   auto collect = [&](const ReplannerOutput& out) {
     log.transitions.insert(log.transitions.end(), out.transitions.begin(), out.transitions.end());
-    if (out.trajectory && out.trajectory->reason != "emergency stop") ++log.plans;
+    if (out.trajectory && out.trajectory->reason != "emergency stop") {
+      ++log.plans;
+      if (out.trajectory->reaches_goal)
+        log.goal_reaching_plan_distances.push_back((odom.p_world_body - goal).norm());
+    }
     if (out.abandoned) log.abandoned = out.abandoned;
   };
-  Odometry odom;
   odom.p_world_body = start;
   double yaw = std::atan2(goal.y() - start.y(), goal.x() - start.x());
   collect(rp->OnOdometry(odom));
@@ -103,6 +108,34 @@ TEST(ReplannerTest, DepthFlightDiscoversAWallOnTheWayAndDetoursToTheGoal) {
   EXPECT_TRUE(Contains(log.transitions, "executing + replan distance travelled -> replanning"));
   EXPECT_TRUE(Contains(log.transitions, "executing + goal reached -> goal reached"));
   EXPECT_FALSE(rp.state().has_goal);
+}
+
+// Fast-Planner flies the trajectory to the goal without replanning, so a dataset of its plans has none for
+// the final approach; fsm.replan_final_approach keeps the plans coming every replan_distance_m down to that
+// distance from the goal.
+TEST(ReplannerTest, FinalApproachIsReplannedOnlyWhenConfigured) {
+  const Eigen::Vector3d start(2.0, 6.0, 1.5), goal(14.0, 6.0, 1.5);
+  for (const bool replan : {false, true}) {
+    SCOPED_TRACE(replan ? "replan_final_approach" : "fast-planner");
+    PlannerConfig cfg = DepthConfig();
+    cfg.fsm.replan_final_approach = replan;
+    Replanner rp(cfg);
+    const FlightLog log = Fly(&rp, {}, start, goal, 30.0);
+    ASSERT_TRUE(log.reached) << (log.abandoned ? *log.abandoned : "timeout");
+    const auto& d = log.goal_reaching_plan_distances;
+    ASSERT_FALSE(d.empty());
+    // The goal comes into reach when the search horizon plus the final shot cover it (here ~9 m away).
+    EXPECT_LE(d.front(), cfg.search.horizon_m + cfg.search.shot_radius_m + 0.5);
+    if (!replan) {
+      EXPECT_EQ(d.size(), 1u);
+    } else {
+      // About one plan per metre of the final approach, the last one between 1 and 2 m from the goal.
+      EXPECT_GE(d.size(), static_cast<size_t>(d.front() - 2.0));
+      EXPECT_GT(d.back(), cfg.fsm.replan_distance_m);
+      EXPECT_LT(d.back(), 2.0 * cfg.fsm.replan_distance_m + 0.1);
+      for (size_t i = 1; i < d.size(); ++i) EXPECT_LT(d[i], d[i - 1]);
+    }
+  }
 }
 
 TEST(ReplannerTest, GoalsInObstaclesOrOutsideTheMapAreRejectedAndChangeNothing) {

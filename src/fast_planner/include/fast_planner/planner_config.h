@@ -91,6 +91,10 @@ struct FsmConfig {
   double goal_tolerance_m = 0.3;     // the goal is reached within this distance once the trajectory ended
   double stopped_speed_mps = 0.15;   // after an emergency stop the vehicle counts as stopped below this speed
   int max_consecutive_failures = 6;  // plan failures in a row before the goal is abandoned
+  // Keep replanning every replan_distance_m on a trajectory that already reaches the goal, while the vehicle
+  // is farther than replan_distance_m from it. false: the trajectory to the goal is flown without replans
+  // (Fast-Planner), so a recorded dataset has no plans for the final approach (the last ~5 m).
+  bool replan_final_approach = false;
 };
 
 struct PlannerConfig {
