@@ -93,7 +93,7 @@ struct FsmConfig {
   int max_consecutive_failures = 6;  // plan failures in a row before the goal is abandoned
   // Keep replanning every replan_distance_m on a trajectory that already reaches the goal, while the vehicle
   // is farther than replan_distance_m from it. false: the trajectory to the goal is flown without replans
-  // (Fast-Planner), so a recorded dataset has no plans for the final approach (the last ~5 m).
+  // (Fast-Planner), so a recorded dataset has no plans for the final approach (the last ~9 m).
   bool replan_final_approach = false;
 };
 
