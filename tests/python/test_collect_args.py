@@ -26,7 +26,7 @@ def test_repository_config_and_overrides():
         COLLECT_YAML,
         {
             "output_dir": "/tmp/x",
-            "seeds": "5, 6",
+            "seeds": "5, 6, 10-12",
             "episodes": 4,
             "max_samples": 10,
             "episode_timeout_s": 12.5,
@@ -34,7 +34,7 @@ def test_repository_config_and_overrides():
     )
     assert (cfg.output_dir, cfg.seeds, cfg.episodes, cfg.max_samples, cfg.episode_timeout_s) == (
         "/tmp/x",
-        [5, 6],
+        [5, 6, 10, 11, 12],
         4,
         10,
         12.5,
@@ -50,8 +50,9 @@ def test_repository_config_and_overrides():
 @pytest.mark.parametrize(
     ("params", "message"),
     [
-        ({"seeds": "1,x"}, "seeds '1,x': not a list of integers"),
-        ({"seeds": "-3"}, "seeds '-3': seeds must be >= 0"),
+        ({"seeds": "1,x"}, "seeds 'x': not a list of integers"),
+        ({"seeds": "-3"}, "seeds '-3': '-3' is not a range like 100-199"),
+        ({"seeds": "9-5"}, "seeds '9-5': bad seed range '9-5' is empty"),
         ({"episodes": -2}, "episodes -2: must be >= 1"),
         ({"episodes": "many"}, "episodes 'many': not a number"),
         ({"episodes": 2.5}, "episodes '2.5': not an integer"),

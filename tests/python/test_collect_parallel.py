@@ -20,6 +20,7 @@ from quad_il.learning.dataset import expand_paths
 def test_seed_ranges_and_lists() -> None:
     assert parse_seed_ranges("100-103,110") == [100, 101, 102, 103, 110]
     assert parse_seed_ranges("1, 2,3") == [1, 2, 3]
+    assert parse_seed_ranges("1 2 10-11") == [1, 2, 10, 11]
 
 
 @pytest.mark.parametrize(

@@ -169,6 +169,10 @@ def test_the_repository_config_loads_and_errors_name_the_key(tmp_path: Path) -> 
         )
         == cfg
     )
+    # The 10 Hz variant differs from the recovery config only in the decision rate.
+    r10 = load_policy_config(CONFIG.with_name("policy_recovery_r10.yaml"))
+    assert r10.replan_rate_hz == 10.0 and rec.replan_rate_hz == 0.0
+    assert r10.model_copy(update={"replan_rate_hz": 0.0}) == rec
     tree = yaml.safe_load(CONFIG.read_text())
     typo = copy.deepcopy(tree)
     typo["safety"]["max_vel_mp"] = 3.0

@@ -101,12 +101,10 @@ def parse_seeds(text: str) -> list[int]:
 
 
 def parse_seed_ranges(text: str, distinct: bool = False) -> list[int]:
-    """'100-103,110' -> [100, 101, 102, 103, 110] (ranges and plain lists); errors (ValueError) name the part.
-    distinct: a seed listed twice is an error."""
+    """'100-103,110' or '100-103 110' -> [100, 101, 102, 103, 110] (ranges and plain lists, comma or space
+    separated); errors (ValueError) name the part. distinct: a seed listed twice is an error."""
     seeds: list[int] = []
-    for part in str(text).replace(" ", "").split(","):
-        if not part:
-            continue
+    for part in str(text).replace(",", " ").split():
         if "-" in part:
             a, b = part.split("-", 1)
             try:
@@ -128,7 +126,7 @@ def parse_seed_ranges(text: str, distinct: bool = False) -> list[int]:
 def manager_config(path: str | os.PathLike, params: dict) -> CollectConfig:
     """The episode manager's config: the YAML at `path` with its node parameters (launch arguments) applied.
 
-    params: output_dir (str), seeds (str, "" = config's), episodes (int, 0 = config's), max_samples (int,
+    params: output_dir (str), seeds (str: a list with ranges, "1,2,10-19"; "" = config's), episodes (int, 0 = config's), max_samples (int,
     < 0 = config's), episode_timeout_s (float, 0 = config's). Raises ValueError naming the bad argument.
     """
     known = {"output_dir", "seeds", "episodes", "max_samples", "episode_timeout_s"}
@@ -154,7 +152,7 @@ def manager_config(path: str | os.PathLike, params: dict) -> CollectConfig:
         overrides["output_dir"] = out
     seeds = str(params.get("seeds", "") or "").strip()
     if seeds:
-        overrides["seeds"] = parse_seeds(seeds)
+        overrides["seeds"] = parse_seed_ranges(seeds)
     episodes = number("episodes", int, 0)
     if episodes < 0:
         raise ValueError(f"episodes {episodes}: must be >= 1 (0: the config's)")
