@@ -126,8 +126,9 @@ def parse_seed_ranges(text: str, distinct: bool = False) -> list[int]:
 def manager_config(path: str | os.PathLike, params: dict) -> CollectConfig:
     """The episode manager's config: the YAML at `path` with its node parameters (launch arguments) applied.
 
-    params: output_dir (str), seeds (str: a list with ranges, "1,2,10-19"; "" = config's), episodes (int, 0 = config's), max_samples (int,
-    < 0 = config's), episode_timeout_s (float, 0 = config's). Raises ValueError naming the bad argument.
+    params: output_dir (str), seeds (str: a list with ranges, "1,2,10-19"; "" = config's), episodes (int,
+    0 = config's), max_samples (int, < 0 = config's), episode_timeout_s (float, 0 = config's). Raises
+    ValueError naming the bad argument.
     """
     known = {"output_dir", "seeds", "episodes", "max_samples", "episode_timeout_s"}
     unknown = set(params) - known
