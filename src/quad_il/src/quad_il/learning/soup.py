@@ -1,13 +1,13 @@
 """Weight averaging of training checkpoints into one exported policy (a "model soup", Wortsman et al. 2022).
 
-Checkpoints fine-tuned from a common parent (the rounds of an imitation-learning run, or a round and an annealed
-re-training of it, all started from one set of weights) lie in one basin of the loss, and the average of their
-weights is often a better network than any of them. Unlike an ensemble it costs nothing at inference: the result
-is one network of the same size, exported as any training run's `policy.ts` (docs/learning.md, "Weight
-averaging").
+Checkpoints fine-tuned from a common parent (the rounds of an imitation-learning run, or a round and an
+annealed re-training of it, all started from one set of weights) lie in one basin of the loss, and the average
+of their weights is often a better network than any of them. Unlike an ensemble it costs nothing at inference:
+the result is one network of the same size, exported as any training run's `policy.ts` (docs/learning.md,
+"Weight averaging").
 
-    python -m quad_il.learning.soup --checkpoint runs/a/checkpoints/best.pt --checkpoint runs/b/checkpoints/best.pt \
-        --out runs/soup_ab/policy.ts
+    python -m quad_il.learning.soup --checkpoint runs/a/checkpoints/best.pt \
+        --checkpoint runs/b/checkpoints/best.pt --out runs/soup_ab/policy.ts
 
 Every checkpoint must have the same model settings (the `model` section of its config), control points and
 horizon; floating-point parameters and buffers (BatchNorm running statistics) are averaged, integer buffers
@@ -34,7 +34,7 @@ class SoupError(ValueError):
 
 
 def average_checkpoints(paths: list[str | Path], weights: list[float] | None = None) -> tuple[Policy, dict]:
-    """The policy with the (weighted) mean of the checkpoints' weights, in eval mode, and the first checkpoint.
+    """The policy with the (weighted) mean of the checkpoints' weights (eval mode) and the first checkpoint.
 
     weights: one non-negative number per checkpoint (normalised to sum 1); None = equal weights."""
     if len(paths) < 2:
@@ -55,7 +55,7 @@ def average_checkpoints(paths: list[str | Path], weights: list[float] | None = N
         except ValueError as e:
             raise SoupError(str(e)) from None
     first_policy, first = loaded[0]
-    for p, (_, ckpt) in zip(paths[1:], loaded[1:]):
+    for p, (_, ckpt) in zip(paths[1:], loaded[1:], strict=True):
         for key in ("num_ctrl_pts", "horizon_s"):
             if ckpt[key] != first[key]:
                 raise SoupError(f"{p}: {key} {ckpt[key]} differs from {paths[0]}'s {first[key]}")
@@ -72,7 +72,7 @@ def average_checkpoints(paths: list[str | Path], weights: list[float] | None = N
     for name, ref in states[0].items():
         if torch.is_floating_point(ref):
             acc = torch.zeros_like(ref, dtype=torch.float64)
-            for w, s in zip(weights, states):
+            for w, s in zip(weights, states, strict=True):
                 acc += (w / total) * s[name].to(torch.float64)
             mean[name] = acc.to(ref.dtype)
         else:
