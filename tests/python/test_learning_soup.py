@@ -6,36 +6,21 @@ from pathlib import Path
 
 import pytest
 import torch
+from test_learning_training import tiny_config
 
 from quad_il.inference.policy import LoadedPolicy
-from quad_il.learning.config import load_config
 from quad_il.learning.export import load_exported
 from quad_il.learning.soup import SoupError, _check_inputs, average_checkpoints, export_soup, main
 from quad_il.learning.synthetic import write_synthetic_npz
 from quad_il.learning.trainer import Trainer, load_policy_checkpoint
 
-ROOT = Path(__file__).resolve().parents[2]
-
 
 def _train(dataset: Path, out: Path, name: str, *extra: str) -> Path:
-    cfg = load_config(
-        [ROOT / "config" / "train.yaml"],
-        [
-            f"data.paths=[{str(dataset)!r}]",
-            f"run.out_dir={str(out)!r}",
-            f"run.name={name}",
-            "model.input_height=32",
-            "model.input_width=32",
-            "optim.batch_size=8",
-            "optim.epochs=1",
-            "log.progress=false",
-            "log.tensorboard=false",
-            "log.export_torchscript=false",
-            "log.plots=false",
-            *extra,
-        ],
+    return (
+        Trainer(tiny_config(dataset, out, name, "optim.epochs=1", *extra)).fit().run_dir
+        / "checkpoints"
+        / "last.pt"
     )
-    return Trainer(cfg).fit().run_dir / "checkpoints" / "last.pt"
 
 
 @pytest.fixture(scope="module")
