@@ -93,6 +93,10 @@ def test_bad_input_is_refused_with_the_reason(checkpoints: dict[str, Path], tmp_
     torch.save({"hello": 1}, junk)
     with pytest.raises(SoupError, match="junk.pt: not a quad_il training checkpoint"):
         average_checkpoints([a, junk])
+    text = tmp_path / "notes.pt"
+    text.write_text("not a checkpoint\n")
+    with pytest.raises(SoupError, match="notes.pt: cannot read it as a training checkpoint"):
+        average_checkpoints([a, text])
     out = tmp_path / "policy.ts"
     assert main(["--checkpoint", str(a), "--checkpoint", str(other), "--out", str(out)]) == 2
     assert "soup: error:" in capsys.readouterr().err and not out.exists()

@@ -17,6 +17,7 @@ horizon; floating-point parameters and buffers (BatchNorm running statistics) ar
 from __future__ import annotations
 
 import argparse
+import pickle
 import sys
 from pathlib import Path
 from typing import Any
@@ -54,6 +55,8 @@ def average_checkpoints(paths: list[str | Path], weights: list[float] | None = N
             loaded.append(load_policy_checkpoint(p))
         except ValueError as e:
             raise SoupError(str(e)) from None
+        except (RuntimeError, EOFError, pickle.UnpicklingError) as e:
+            raise SoupError(f"{p}: cannot read it as a training checkpoint ({e})") from None
     first_policy, first = loaded[0]
     for p, (_, ckpt) in zip(paths[1:], loaded[1:], strict=True):
         for key in ("num_ctrl_pts", "horizon_s"):
