@@ -9,9 +9,10 @@ import pytest
 import torch
 from torch import Tensor
 
-from quad_il.inference.random_policy import GoalLinePolicy, _check_inputs, _export, export_goal_line_policy
+from quad_il.inference.random_policy import GoalLinePolicy, export_goal_line_policy
 from quad_il.learning.config import ModelConfig
 from quad_il.learning.depth_sensitivity import angle_diff_deg, end_direction_deg, main, measure, rms_distance
+from quad_il.learning.export import export_policy_file, seeded_check_inputs
 from quad_il.learning.synthetic import write_synthetic_npz
 
 
@@ -32,7 +33,9 @@ class _DepthShift(GoalLinePolicy):
 def _export_depth_shift(path: Path) -> Path:
     cfg = ModelConfig(input_height=32, input_width=32)
     policy = _DepthShift(cfg, 10, 2.0, 1.5).eval()
-    return _export(policy, cfg, path, {"name": "depth_shift_test_double"}, _check_inputs(cfg, 1, 11.0))
+    return export_policy_file(
+        policy, cfg, path, {"name": "depth_shift_test_double"}, seeded_check_inputs(cfg, 1, 11.0)
+    )
 
 
 @pytest.fixture(scope="module")

@@ -9,8 +9,9 @@ import torch
 from test_learning_training import tiny_config
 
 from quad_il.inference.policy import LoadedPolicy
-from quad_il.learning.export import load_exported
-from quad_il.learning.soup import SoupError, _check_inputs, average_checkpoints, export_soup, main
+from quad_il.learning.config import ModelConfig
+from quad_il.learning.export import load_exported, seeded_check_inputs
+from quad_il.learning.soup import SoupError, average_checkpoints, export_soup, main
 from quad_il.learning.synthetic import write_synthetic_npz
 from quad_il.learning.trainer import Trainer, load_policy_checkpoint
 
@@ -69,8 +70,8 @@ def test_the_exported_soup_is_a_policy_file_equal_to_the_averaged_network(
     assert meta["run"]["soup_weights"] == [1.0, 1.0]
     loaded = LoadedPolicy(out)  # the inference nodes' loader accepts it
     assert loaded.meta.num_ctrl_pts == meta["output"]["num_ctrl_pts"]
-    soup, _ = average_checkpoints([checkpoints["a"], checkpoints["b"]])
-    inputs = _check_inputs(soup, seed=5)
+    soup, first = average_checkpoints([checkpoints["a"], checkpoints["b"]])
+    inputs = seeded_check_inputs(ModelConfig.model_validate(first["config"]["model"]), seed=5)
     with torch.no_grad():
         torch.testing.assert_close(module(*inputs), soup(*inputs), rtol=0, atol=1e-4)
         pa, _ = load_policy_checkpoint(checkpoints["a"])

@@ -19,7 +19,7 @@ from torch import Tensor
 
 from quad_il.learning import export as learning_export
 from quad_il.learning.config import ModelConfig, load_config
-from quad_il.learning.export import export_torchscript, policy_metadata
+from quad_il.learning.export import export_policy_file, seeded_check_inputs
 from quad_il.learning.model import Policy, build_policy
 
 
@@ -33,30 +33,6 @@ class PolicyWithForwardNet(Policy):
     @torch.jit.export
     def forward_net(self, depth_x: Tensor, state_x: Tensor) -> Tensor:
         return self.net(depth_x, state_x)
-
-
-def _check_inputs(model_cfg: ModelConfig, seed: int, goal_offset_m: float = 0.0) -> tuple[Tensor, ...]:
-    """Seeded raw inputs (batch of 2, depth at twice the input size) for the export's eager-vs-file check."""
-    g = torch.Generator().manual_seed(seed)
-    b = 2
-    return (
-        torch.rand(b, 2 * model_cfg.input_height, 2 * model_cfg.input_width, generator=g) * 12.0,
-        torch.rand(b, 3, generator=g) * 10.0,
-        torch.rand(b, 3, generator=g),
-        torch.nn.functional.normalize(torch.rand(b, 4, generator=g) + 0.1, dim=1),
-        torch.rand(b, 3, generator=g) * 20.0 + goal_offset_m,
-    )
-
-
-def _export(
-    policy: Policy, model_cfg: ModelConfig, path: str | Path, run: dict, check: tuple[Tensor, ...]
-) -> Path:
-    """Export as training does, with `run` as the metadata's run section."""
-    meta = policy_metadata(policy, model_cfg.model_dump(mode="json"), {"run": run})
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    export_torchscript(policy, out, meta, check)
-    return out
 
 
 def export_random_policy(
@@ -75,13 +51,13 @@ def export_random_policy(
         else build_policy(model_cfg, num_ctrl_pts, horizon_s)
     )
     policy.eval()
-    check = _check_inputs(model_cfg, seed + 1)
+    check = seeded_check_inputs(model_cfg, seed + 1)
     preserved = learning_export.PRESERVED
     try:
         if forward_net:
             # The export freezes the module keeping only the methods in PRESERVED: add the network entry.
             learning_export.PRESERVED = [*preserved, "forward_net"]
-        return _export(
+        return export_policy_file(
             policy, model_cfg, path, {"name": "random_init", "seed": seed, "trained": False}, check
         )
     finally:
@@ -121,9 +97,9 @@ def export_goal_line_policy(
     model_cfg = ModelConfig(input_height=32, input_width=32)
     torch.manual_seed(0)
     policy = GoalLinePolicy(model_cfg, num_ctrl_pts, horizon_s, speed_mps).eval()
-    check = _check_inputs(model_cfg, 1, goal_offset_m=11.0)  # goals never at the vehicle
+    check = seeded_check_inputs(model_cfg, 1, goal_offset_m=11.0)  # goals never at the vehicle
     run = {"name": "goal_line_test_double", "speed_mps": speed_mps, "trained": False}
-    return _export(policy, model_cfg, path, run, check)
+    return export_policy_file(policy, model_cfg, path, run, check)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -34,6 +34,7 @@ from typing import Any
 import torch
 from torch import nn
 
+from quad_il.learning.config import ModelConfig
 from quad_il.learning.mobilenet_v3 import MobileNetV3
 from quad_il.learning.model import Policy, PolicyNet
 
@@ -207,6 +208,32 @@ def export_torchscript(
         return diff
     finally:
         policy.train(was_training)
+
+
+def seeded_check_inputs(
+    model_cfg: ModelConfig, seed: int, goal_offset_m: float = 0.0
+) -> tuple[torch.Tensor, ...]:
+    """Seeded raw inputs (batch of 2, depth at twice the input size) for the export's eager-vs-file check."""
+    g = torch.Generator().manual_seed(seed)
+    b = 2
+    return (
+        torch.rand(b, 2 * model_cfg.input_height, 2 * model_cfg.input_width, generator=g) * 12.0,
+        torch.rand(b, 3, generator=g) * 10.0,
+        torch.rand(b, 3, generator=g),
+        torch.nn.functional.normalize(torch.rand(b, 4, generator=g) + 0.1, dim=1),
+        torch.rand(b, 3, generator=g) * 20.0 + goal_offset_m,
+    )
+
+
+def export_policy_file(
+    policy: Policy, model_cfg: ModelConfig, path: str | Path, run: dict, check: tuple[torch.Tensor, ...]
+) -> Path:
+    """Export as training does, with `run` as the metadata's run section (creates the parent directory)."""
+    meta = policy_metadata(policy, model_cfg.model_dump(mode="json"), {"run": run})
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    export_torchscript(policy, out, meta, check)
+    return out
 
 
 def load_exported(path: str | Path) -> tuple[torch.jit.ScriptModule, dict[str, Any]]:

@@ -24,7 +24,8 @@ from typing import Any
 
 import torch
 
-from quad_il.learning.export import export_torchscript, policy_metadata
+from quad_il.learning.config import ModelConfig
+from quad_il.learning.export import export_policy_file, seeded_check_inputs
 from quad_il.learning.model import Policy
 from quad_il.learning.runinfo import software_info
 from quad_il.learning.trainer import load_policy_checkpoint
@@ -84,44 +85,23 @@ def average_checkpoints(paths: list[str | Path], weights: list[float] | None = N
     return first_policy.eval(), first
 
 
-def _check_inputs(policy: Policy, batch: int = 4, seed: int = 0) -> tuple[torch.Tensor, ...]:
-    """Plausible inputs for the export's equality check: depth 0..max_depth_m, positions and goals within
-    +-20 m, velocities within +-3 m/s, random unit quaternions."""
-    g = torch.Generator().manual_seed(seed)
-    pre = policy.depth_pre
-    depth = torch.rand(batch, 2 * pre.out_height, 2 * pre.out_width, generator=g) * pre.max_depth_m
-    p = (torch.rand(batch, 3, generator=g) - 0.5) * 40.0
-    v = (torch.rand(batch, 3, generator=g) - 0.5) * 6.0
-    q = torch.randn(batch, 4, generator=g)
-    q = q / q.norm(dim=1, keepdim=True)
-    goal = (torch.rand(batch, 3, generator=g) - 0.5) * 40.0
-    return depth, p, v, q, goal
-
-
 def export_soup(
     paths: list[str | Path], out: str | Path, weights: list[float] | None = None
 ) -> dict[str, Any]:
     """Average the checkpoints and export the result to `out` (TorchScript with metadata, as a training run's
-    policy.ts). Returns the metadata written."""
+    policy.ts). Returns the metadata's run section."""
+    weights = list(weights) if weights is not None else [1.0] * len(paths)
     policy, first = average_checkpoints(paths, weights)
-    model_cfg = first["config"]["model"]
-    meta = policy_metadata(
-        policy,
-        model_cfg,
-        {
-            "run": {
-                "name": "soup",
-                "soup_of": [str(p) for p in paths],
-                "soup_weights": list(weights) if weights is not None else [1.0] * len(paths),
-                "loss": first["config"].get("optim", {}).get("loss"),
-                "software": software_info(),
-            }
-        },
-    )
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    export_torchscript(policy, out, meta, _check_inputs(policy))
-    return meta
+    model_cfg = ModelConfig.model_validate(first["config"]["model"])
+    run = {
+        "name": "soup",
+        "soup_of": [str(p) for p in paths],
+        "soup_weights": weights,
+        "loss": first["config"].get("optim", {}).get("loss"),
+        "software": software_info(),
+    }
+    export_policy_file(policy, model_cfg, out, run, seeded_check_inputs(model_cfg, 0))
+    return run
 
 
 def main(argv: list[str] | None = None) -> int:
