@@ -86,3 +86,56 @@ def test_stride_keeps_every_nth_wanted_record_of_each_episode(tmp_path: Path) ->
     assert seqs == [recs[0].obs.frame_seq, recs[5].obs.frame_seq] * 2
     with pytest.raises(DatasetError, match="--stride must be >= 1, got 0"):
         convert([tmp_path], tmp_path / "z.npz", stride=0)
+
+
+FAKE_TRAINER = """\
+import sys
+from pathlib import Path
+
+argv = sys.argv[1:]
+data = Path(argv[argv.index("--data") + 1])
+out = Path(argv[argv.index("--out") + 1]) / argv[argv.index("--name") + 1]
+# What the manager's training step must guarantee: the converted copy exists while training runs.
+assert data.is_file(), data
+out.mkdir(parents=True, exist_ok=True)
+(out / "seen.txt").write_text(str(data.stat().st_size))
+if "--fail" in argv:
+    sys.exit(3)
+(out / "policy.ts").write_bytes(b"policy")
+"""
+
+
+def _train_round(tmp_path: Path, *extra: str) -> tuple[int, Path]:
+    from quad_il.imitation.convert import main
+
+    root = tmp_path / "root"
+    (root / "training_only").mkdir(parents=True, exist_ok=True)
+    (root / "training_only" / "train_on_cpp_datasets.py").write_text(FAKE_TRAINER)
+    write_episode(tmp_path / "r0", 7, make_records(4))
+    ckpt = tmp_path / "ckpt"
+    mp = pytest.MonkeyPatch()
+    mp.setenv("QUAD_IL_ROOT", str(root))
+    try:
+        code = main(["train", "--data-dirs", str(tmp_path / "r0"), "--checkpoint-dir", str(ckpt), *extra])
+    finally:
+        mp.undo()
+    return code, ckpt
+
+
+def test_train_round_removes_the_converted_copy_after_a_successful_training(tmp_path: Path) -> None:
+    code, ckpt = _train_round(tmp_path)
+    assert code == 0
+    assert int((ckpt / "train" / "seen.txt").read_text()) > 0  # the trainer read a real npz
+    assert (ckpt / "policy.ts").read_bytes() == b"policy"
+    assert not (ckpt / "dataset.npz").exists()
+    assert (tmp_path / "r0").is_dir() and any(
+        (tmp_path / "r0").iterdir()
+    )  # the round data it came from stays
+
+
+def test_train_round_keeps_the_converted_copy_when_asked_or_when_training_fails(tmp_path: Path) -> None:
+    code, ckpt = _train_round(tmp_path / "keep", "--keep-dataset")
+    assert code == 0 and (ckpt / "dataset.npz").is_file()
+    code, ckpt = _train_round(tmp_path / "fail", "--set=--fail")
+    assert code == 3
+    assert (ckpt / "dataset.npz").is_file() and not (ckpt / "policy.ts").exists()

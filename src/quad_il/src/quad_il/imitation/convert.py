@@ -187,12 +187,21 @@ def train_round(args: argparse.Namespace) -> int:
         cmd += ["--set", kv]
     code = subprocess.call(cmd)
     if code != 0:
-        return code
+        return code  # the converted copy stays for a look at what was trained on; a retry rewrites it
     exported = ckpt / "train" / "policy.ts"
     if not exported.is_file():
         print(f"convert: training wrote no {exported}", file=sys.stderr)
         return 1
     shutil.copyfile(exported, ckpt / args.policy_file)
+    if not args.keep_dataset:
+        # The converted copy holds every round so far (GBs by the fourth round); the round directories it was
+        # made from stay, and the same command makes it again.
+        size_mb = npz.stat().st_size / 1e6
+        npz.unlink()
+        print(
+            f"convert: removed the converted copy {npz} ({size_mb:.0f} MB; --keep-dataset keeps it)",
+            file=sys.stderr,
+        )
     return 0
 
 
@@ -209,6 +218,11 @@ def main(argv: list[str] | None = None) -> int:
         ap.add_argument("--horizon-s", type=float, default=2.0)
         ap.add_argument("--partitions", default="demo,intervention")
         ap.add_argument("--stride", type=int, default=1, help="keep every N-th record of each episode")
+        ap.add_argument(
+            "--keep-dataset",
+            action="store_true",
+            help="keep checkpoint/dataset.npz after a successful training (default: removed, it is regenerable)",
+        )
         ap.add_argument(
             "--extra-data",
             action="append",
