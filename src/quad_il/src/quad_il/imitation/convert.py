@@ -221,7 +221,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.add_argument(
             "--keep-dataset",
             action="store_true",
-            help="keep checkpoint/dataset.npz after a successful training (default: removed, it is regenerable)",
+            help="keep checkpoint/dataset.npz after a successful training (default: removed; regenerable)",
         )
         ap.add_argument(
             "--extra-data",
