@@ -33,6 +33,7 @@ from quad_il.inference.safety import CameraModel, SafetyVerdict, nearest_depth, 
 from quad_il.inference.trajectory import (
     UniformBspline,
     braking_trajectory,
+    final_approach,
     turning_stop,
     with_constant_yaw_rate,
 )
@@ -305,6 +306,8 @@ def _recovery(
     turn_after: int = 0,
     turn_rate: float = 45.0,
     turn_clearance: float = 0.0,
+    final_m: float = 0.0,
+    final_acc: float = 2.0,
 ) -> RecoveryConfig:
     return RecoveryConfig(
         goal_yaw_offsets_deg=turns or [],
@@ -312,6 +315,8 @@ def _recovery(
         turn_after_stops=turn_after,
         turn_rate_dps=turn_rate,
         turn_clearance_m=turn_clearance,
+        final_approach_m=final_m,
+        final_approach_acc_mps2=final_acc,
     )
 
 
@@ -615,5 +620,93 @@ def test_turning_config_errors_name_the_key(
         .replace("action: stop", f"action: {action.split()[0]}")
         .replace("turn_clearance_m: 0.8", f"turn_clearance_m: {action.split()[-1] if ' ' in action else 0.8}")
     )
+    with pytest.raises(PolicyConfigError, match=message):
+        load_policy_config(bad)
+
+
+@pytest.mark.parametrize(
+    "v0",
+    [np.zeros(3), np.array([2.0, 0.0, 0.0]), np.array([1.5, -0.5, 0.8]), np.array([-2.0, 1.0, 0.0])],
+)
+def test_the_final_approach_ends_at_rest_on_the_goal_within_the_acceleration_limit(v0: np.ndarray) -> None:
+    p0, goal = np.array([1.0, 2.0, 1.5]), np.array([1.6, 2.8, 2.3])  # 1.28 m away, 0.8 m above
+    t = final_approach(p0, v0, goal, 2.0, 0.5, 4.0)
+    assert t is not None and t.num_ctrl_pts == 4 and t.start_time_s == 4.0
+    assert t.duration_s >= 0.5 and t.yaw_ctrl is None
+    np.testing.assert_allclose(t.position(0.0)[0], p0, atol=1e-12)
+    np.testing.assert_allclose(t.velocity(0.0)[0], v0, atol=1e-12)
+    np.testing.assert_allclose(t.position(t.duration_s)[0], goal, atol=1e-12)
+    np.testing.assert_allclose(t.velocity(t.duration_s)[0], 0.0, atol=1e-12)
+    acc = np.linalg.norm(t.acceleration(np.linspace(0.0, t.duration_s, 101)), axis=1)
+    assert acc.max() <= 2.0 + 1e-9
+    # The first duration on the 0.02 s grid that keeps the limit: 0.02 s less would exceed it.
+    if t.duration_s > 0.5 + 1e-9:
+        shorter = t.duration_s - 0.02
+        b = goal - p0 - v0 * shorter / 3.0
+        ends = [-2.0 * v0 / shorter + 6.0 * b / shorter**2, -6.0 * b / shorter**2]
+        assert max(np.linalg.norm(e) for e in ends) > 2.0
+
+
+def test_the_final_approach_is_none_without_a_feasible_duration_and_rejects_bad_input() -> None:
+    # 5 m/s away from a goal 1 m behind, with 1e-4 m/s^2: no duration up to 40 s turns it round.
+    assert final_approach(np.zeros(3), np.array([5.0, 0, 0]), np.array([-1.0, 0, 0]), 1e-4, 0.5, 0.0) is None
+    with pytest.raises(ValueError, match="final approach: non-finite goal"):
+        final_approach(np.zeros(3), np.zeros(3), np.array([np.nan, 0, 0]), 2.0, 0.5, 0.0)
+    with pytest.raises(ValueError, match="must be > 0"):
+        final_approach(np.zeros(3), np.zeros(3), np.ones(3), 0.0, 0.5, 0.0)
+
+
+def test_the_decider_flies_the_final_approach_near_the_goal_only_when_it_is_clear(policies) -> None:
+    cfg = load_policy_config(CONFIG)
+    q = np.array([0.0, 0.0, 0.0, 1.0])
+    free = np.full((50, 70), np.inf, np.float32)
+    # A random world-frame policy proposes control points near the origin: refused 12 m away (start far).
+    p = np.array([12.0, 0.0, 1.5])
+    near_goal = p + np.array([1.0, 0.0, 0.3])
+
+    T = _camera().T_world_camera.copy()
+    T[:3, 3] = p  # the camera at the vehicle, looking along +x
+    camera = dataclasses.replace(_camera(), T_world_camera=T)
+
+    def decide(recovery: RecoveryConfig, depth: np.ndarray, goal: np.ndarray):
+        decider = PolicyDecider(policies["world"], cfg.safety, cfg.refusal, recovery)
+        return decider, decider.decide(DecisionInputs(3.0, depth, camera, p, np.array([1.0, 0, 0]), q, goal))
+
+    decider, d = decide(_recovery(final_m=1.5), free, near_goal)
+    assert d.final is not None and d.to_send() is d.final and d.stop is None
+    assert not d.accepted  # the network's own plan is still judged (and counted)
+    assert decider.counts.counts[SafetyVerdict.START_FAR_FROM_VEHICLE] == 1 and decider.stops_in_row == 0
+    np.testing.assert_allclose(d.final.position(d.final.duration_s)[0], near_goal, atol=1e-12)
+    # Beyond the distance, or off: the decision is the one without it (here the stopping trajectory).
+    for recovery, goal in ((_recovery(final_m=1.5), p + np.array([1.6, 0, 0])), (_recovery(), near_goal)):
+        _, d = decide(recovery, free, goal)
+        assert d.final is None and d.to_send() is d.stop
+    # A wall 1.2 m ahead between the vehicle and a goal 1.4 m ahead: the safety layer refuses the approach.
+    _, d = decide(_recovery(final_m=1.5), _wall_ahead(), p + np.array([1.4, 0, 0]))
+    assert d.final is None and d.to_send() is d.stop
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "message"),
+    [
+        (
+            "final_approach_m: 0.0",
+            "final_approach_m: -1.0",
+            r"recovery\.final_approach_m[\s\S]*greater than or equal to 0",
+        ),
+        (
+            "final_approach_acc_mps2: 2.0",
+            "final_approach_acc_mps2: 0",
+            r"recovery\.final_approach_acc_mps2[\s\S]*greater than 0",
+        ),
+        ("  final_approach_m: 0.0\n", "", r"key 'recovery\.final_approach_m': Field required"),
+    ],
+)
+def test_final_approach_config_errors_name_the_key(tmp_path: Path, old: str, new: str, message: str) -> None:
+    assert load_policy_config(CONFIG).recovery.final_approach_m == 0.0  # off in the repository's config
+    bad = tmp_path / "policy.yaml"
+    text = CONFIG.read_text()
+    assert old in text
+    bad.write_text(text.replace(old, new))
     with pytest.raises(PolicyConfigError, match=message):
         load_policy_config(bad)

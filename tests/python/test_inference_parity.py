@@ -9,6 +9,7 @@ is not built and sourced.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import subprocess
 from pathlib import Path
@@ -69,7 +70,11 @@ def _sent_kinds(py: list) -> list[int]:
     return [
         0
         if d.to_send() is None
-        else ((4 if d.steered else 3) if d.recovery is not None else (1 if d.accepted else 2))
+        else (
+            5
+            if d.final is not None
+            else ((4 if d.steered else 3) if d.recovery is not None else (1 if d.accepted else 2))
+        )
         for d in py
     ]
 
@@ -335,6 +340,42 @@ def test_recovery_and_steering_succeed_alike_with_a_goal_seeking_policy(tmp_path
         np.testing.assert_allclose(cpp["recovery_ctrl"][i], py[i].recovery.ctrl_world, rtol=0, atol=TOL)
         heading = py[i].recovery.position(np.array([1.0]))[0] - fx.p_world_body[i]
         assert np.degrees(np.arctan2(heading[1], heading[0])) == pytest.approx(20.0, abs=1e-3)
+
+
+def test_the_final_approach_is_flown_alike_in_both_deciders(tmp_path: Path) -> None:
+    """recovery.final_approach_m 1.5, the vehicle at the origin facing +x, moving at (1, 0.2, -0.1) m/s.
+    Frames: the goal 1.2 m ahead, nothing seen (the final approach); the same goal behind a wall 0.9 m ahead
+    (the approach refused: the goal-seeking double's plan is refused too, so the stopping trajectory); the
+    goal 1.8 m ahead (beyond the distance: the network's plan); the goal 1.0 m ahead, 0.3 m left and 0.4 m up
+    (the final approach)."""
+    policy_path = export_goal_line_policy(tmp_path / "goal_line.ts")
+    n = 4
+    depth = np.full((n, H, W), np.inf, np.float32)
+    depth[1][:, 30:50] = 0.9
+    goals = np.array([[1.2, 0.0, 1.5], [1.2, 0.0, 1.5], [1.8, 0.0, 1.5], [1.0, 0.3, 1.9]])
+    fx, config = _hover_scene(
+        tmp_path,
+        depth,
+        np.array([0.0, 0.0, 1.5]),
+        np.array([0.0, 0.0, 0.0, 1.0]),
+        goals,
+        {"final_approach_m: 0.0": "final_approach_m: 1.5"},
+    )
+    fx = dataclasses.replace(fx, v_world=np.tile([1.0, 0.2, -0.1], (n, 1)))
+    write_fixture(tmp_path / "fx", fx)
+    cfg = load_policy_config(config)
+    cpp = _replay(policy_path, tmp_path / "fx", config, tmp_path / "cpp")
+    py = _decide_all(PolicyDecider(LoadedPolicy(policy_path), cfg.safety, cfg.refusal, cfg.recovery), fx)
+    assert _sent_kinds(py) == [5, 2, 1, 5]
+    np.testing.assert_array_equal(cpp["sent_kind"], _sent_kinds(py))
+    for i, d in enumerate(py):
+        if d.final is None:
+            np.testing.assert_array_equal(cpp["final_ctrl"][i], np.zeros((4, 3)))
+            assert cpp["final_knot_dt"][i] == 0.0
+            continue
+        np.testing.assert_allclose(cpp["final_ctrl"][i], d.final.ctrl_world, rtol=0, atol=1e-9)
+        assert cpp["final_knot_dt"][i] == pytest.approx(d.final.knot_dt_s, abs=1e-12)
+        np.testing.assert_allclose(d.final.position(d.final.duration_s)[0], goals[i], atol=1e-9)
 
 
 def test_turning_in_place_turns_alike_in_both_deciders(tmp_path: Path) -> None:

@@ -11,6 +11,7 @@ namespace quad_policy {
 const char* ToString(RefusalAction action) { return action == RefusalAction::kHover ? "hover" : "stop"; }
 
 const UniformBspline* Decision::to_send() const {
+  if (final_approach) return &*final_approach;
   if (recovery) return &*recovery;
   if (accepted()) return &proposed;
   return stop ? &*stop : nullptr;
@@ -69,6 +70,14 @@ void ValidateRecoveryConfig(const RecoveryConfig& r) {
   if (!(std::isfinite(r.turn_rate_dps) && r.turn_rate_dps > 0.0 && r.turn_rate_dps <= 180.0)) {
     throw std::invalid_argument("recovery.turn_rate_dps must be within (0, 180] deg/s, got " +
                                 std::to_string(r.turn_rate_dps));
+  }
+  if (!(std::isfinite(r.final_approach_m) && r.final_approach_m >= 0.0)) {
+    throw std::invalid_argument("recovery.final_approach_m must be >= 0 (0: off), got " +
+                                std::to_string(r.final_approach_m));
+  }
+  if (!(std::isfinite(r.final_approach_acc_mps2) && r.final_approach_acc_mps2 > 0.0)) {
+    throw std::invalid_argument("recovery.final_approach_acc_mps2 must be > 0, got " +
+                                std::to_string(r.final_approach_acc_mps2));
   }
 }
 
@@ -134,6 +143,14 @@ Decision PolicyDecider::Decide(const DecisionInputs& in) {
 
   t0 = std::chrono::steady_clock::now();
   d.safety = CheckTrajectory(d.proposed, in.state.p_world_body, &in.depth, in.camera, safety_);
+  if ((in.goal_world - in.state.p_world_body).norm() < recovery_.final_approach_m) {  // 0: off
+    std::optional<UniformBspline> traj =
+        FinalApproach(in.state.p_world_body, in.state.v_world, in.goal_world,
+                      recovery_.final_approach_acc_mps2, refusal_.stop_min_duration_s, in.stamp_s);
+    if (traj && CheckTrajectory(*traj, in.state.p_world_body, &in.depth, in.camera, safety_).accepted()) {
+      d.final_approach = std::move(traj);
+    }
+  }
   // A refused proposal is replaced by the first turned plan that the safety layer accepts and that stays in
   // view. Steering: an accepted proposal that comes nearer than steer_clearance_m to what the depth frame
   // shows is replaced by the first turned plan that, besides, keeps steer_clearance_m. (The wider sphere
@@ -143,7 +160,7 @@ Decision PolicyDecider::Decide(const DecisionInputs& in) {
   const bool steering =
       d.accepted() && recovery_.steer_clearance_m > 0.0 &&
       !CheckTrajectory(d.proposed, in.state.p_world_body, &in.depth, in.camera, steer).accepted();
-  if (!d.accepted() || steering) {
+  if (!d.final_approach && (!d.accepted() || steering)) {
     for (double yaw : recovery_.goal_yaw_offsets_deg) {
       ++d.recovery_tries;
       const Eigen::Vector3d goal = TurnedGoal(in.state.p_world_body, in.goal_world, yaw);
@@ -160,7 +177,7 @@ Decision PolicyDecider::Decide(const DecisionInputs& in) {
       }
     }
   }
-  if (!d.accepted() && !d.recovery && refusal_.action == RefusalAction::kStop) {
+  if (!d.accepted() && !d.recovery && !d.final_approach && refusal_.action == RefusalAction::kStop) {
     ++stops_in_row_;
     if (recovery_.turn_after_stops > 0 && stops_in_row_ >= recovery_.turn_after_stops) {
       const Eigen::Matrix3d R = in.state.q_world_body.normalized().toRotationMatrix();

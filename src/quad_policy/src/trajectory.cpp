@@ -145,6 +145,25 @@ UniformBspline TurningStop(const Eigen::Vector3d& p0_world, const Eigen::Vector3
   return s;
 }
 
+std::optional<UniformBspline> FinalApproach(const Eigen::Vector3d& p0_world, const Eigen::Vector3d& v0_world,
+                                            const Eigen::Vector3d& goal_world, double max_acc_mps2,
+                                            double min_duration_s, double start_time_s) {
+  CheckStopInputs(p0_world, v0_world, max_acc_mps2, min_duration_s, start_time_s);
+  if (!goal_world.allFinite()) throw std::invalid_argument("final approach: non-finite goal");
+  constexpr double kStepS = 0.02;
+  constexpr int kMaxSteps = 2000;
+  for (int k = 0; k <= kMaxSteps; ++k) {
+    const double duration = min_duration_s + k * kStepS;
+    const Eigen::Vector3d b = goal_world - p0_world - v0_world * (duration / 3.0);
+    const Eigen::Vector3d a_start = -2.0 * v0_world / duration + 6.0 * b / (duration * duration);
+    const Eigen::Vector3d a_end = -6.0 * b / (duration * duration);
+    if (std::max(a_start.norm(), a_end.norm()) <= max_acc_mps2) {
+      return StopCubic(p0_world, v0_world, b, duration, start_time_s);
+    }
+  }
+  return std::nullopt;
+}
+
 void SetConstantYawRate(UniformBspline* s, double yaw0_rad, double rate_radps) {
   if (!std::isfinite(yaw0_rad) || !std::isfinite(rate_radps)) {
     throw std::invalid_argument("SetConstantYawRate: non-finite yaw or rate");

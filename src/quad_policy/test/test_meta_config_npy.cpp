@@ -237,6 +237,25 @@ TEST(PolicyNodeConfig, TurningInPlaceIsReadAndBadValuesNamed) {
                                          "c");
             }).find("'recovery.turn_clearance_m' has value -1"),
             std::string::npos);
+  EXPECT_EQ(c.recovery.final_approach_m, 0.0);  // off by default
+  EXPECT_EQ(c.recovery.final_approach_acc_mps2, 2.0);
+  const PolicyNodeConfig fa =
+      PolicyNodeConfigFromString(RepoConfigWith("final_approach_m: 0.0", "final_approach_m: 1.5"), "c");
+  EXPECT_EQ(fa.recovery.final_approach_m, 1.5);
+  EXPECT_NE(ErrorOf([&] {
+              PolicyNodeConfigFromString(RepoConfigWith("final_approach_m: 0.0", "final_approach_m: -1"),
+                                         "c");
+            }).find("'recovery.final_approach_m' has value -1"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf([&] {
+              PolicyNodeConfigFromString(
+                  RepoConfigWith("final_approach_acc_mps2: 2.0", "final_approach_acc_mps2: 0"), "c");
+            }).find("'recovery.final_approach_acc_mps2' has value 0"),
+            std::string::npos);
+  RecoveryConfig bad;
+  bad.final_approach_m = std::nan("");
+  EXPECT_NE(ErrorOf([&] { ValidateRecoveryConfig(bad); }).find("recovery.final_approach_m must be >= 0"),
+            std::string::npos);
 }
 
 class TempDir : public ::testing::Test {

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <optional>
 #include <random>
 
 #include "quad_policy/trajectory.h"
@@ -151,6 +152,40 @@ TEST(TurningStop, BacksOffWithinTheDecelerationLimitAndEndsAtRest) {
   EXPECT_THROW(TurningStop(p0, v0, Eigen::Vector3d(NAN, 0, 0), 0.0, 0.5, 3.0, 0.5, 7.0),
                std::invalid_argument);
   EXPECT_THROW(TurningStop(p0, v0, b, 0.0, 0.5, 0.0, 0.5, 7.0), std::invalid_argument);
+}
+
+TEST(FinalApproach, EndsAtRestOnTheGoalWithinTheAccelerationLimit) {
+  const Eigen::Vector3d p0(1, 2, 1.5), v0(1.5, -0.5, 0.8), goal(1.6, 2.8, 2.3);
+  const std::optional<UniformBspline> s = FinalApproach(p0, v0, goal, 2.0, 0.5, 4.0);
+  ASSERT_TRUE(s.has_value());
+  ASSERT_EQ(s->num_ctrl_pts(), 4);
+  const double T = s->knot_dt_s;
+  EXPECT_GE(T, 0.5);
+  EXPECT_DOUBLE_EQ(s->start_time_s, 4.0);
+  EXPECT_NEAR((s->Position(0.0) - p0).norm(), 0.0, 1e-12);
+  EXPECT_NEAR((s->Velocity(0.0) - v0).norm(), 0.0, 1e-12);
+  EXPECT_NEAR((s->Position(T) - goal).norm(), 0.0, 1e-12);
+  EXPECT_NEAR(s->Velocity(T).norm(), 0.0, 1e-12);
+  double peak = 0.0;
+  for (int i = 0; i <= 100; ++i) peak = std::max(peak, s->Acceleration(T * i / 100.0).norm());
+  EXPECT_LE(peak, 2.0 + 1e-9);
+  // The first duration on the 0.02 s grid: 0.02 s shorter exceeds the limit at an end.
+  const double shorter = T - 0.02;
+  ASSERT_GT(shorter, 0.5);
+  const Eigen::Vector3d b = goal - p0 - v0 * (shorter / 3.0);
+  EXPECT_GT(std::max((-2.0 * v0 / shorter + 6.0 * b / (shorter * shorter)).norm(),
+                     (6.0 * b / (shorter * shorter)).norm()),
+            2.0);
+  // At rest 5 cm from the goal (6 * 0.05 / 0.5^2 = 1.2 m/s^2): the minimum duration.
+  EXPECT_DOUBLE_EQ(
+      FinalApproach(p0, Eigen::Vector3d::Zero(), p0 + Eigen::Vector3d(0.05, 0, 0), 2.0, 0.5, 0.0)->knot_dt_s,
+      0.5);
+  // 5 m/s away from a goal 1 m behind with 1e-4 m/s^2: no duration up to 40 s turns it round.
+  EXPECT_FALSE(FinalApproach(Eigen::Vector3d::Zero(), Eigen::Vector3d(5, 0, 0), Eigen::Vector3d(-1, 0, 0),
+                             1e-4, 0.5, 0.0)
+                   .has_value());
+  EXPECT_THROW(FinalApproach(p0, v0, Eigen::Vector3d(NAN, 0, 0), 2.0, 0.5, 0.0), std::invalid_argument);
+  EXPECT_THROW(FinalApproach(p0, v0, goal, 0.0, 0.5, 0.0), std::invalid_argument);
 }
 
 TEST(PolicyTrajectory, UsesTheMetadataHorizon) {

@@ -13,9 +13,11 @@
 // reason) and traj_in_view.npy (TrajectoryInView). The recovery (the config's recovery section) writes
 // recovery_tries.npy, recovery_yaw_deg.npy (NaN: not recovered) and recovery_ctrl.npy (zeros: not
 // recovered); sent_kind.npy is 0 nothing, 1 the policy's plan, 2 the stopping trajectory, 3 the recovery's, 4
-// the recovery's replacing an accepted plan (steering). Turning in place (recovery.turn_after_stops) writes
-// turn_rate_radps.npy (0: not turning) and stop_yaw.npy (the stopping trajectory's 4 yaw control points;
-// zeros: none). The frames are decided in order by one decider, as a node decides an episode.
+// the recovery's replacing an accepted plan (steering), 5 the final approach (recovery.final_approach_m; its
+// 4 control points in final_ctrl.npy and knot interval in final_knot_dt.npy, zeros: none). Turning in place
+// (recovery.turn_after_stops) writes turn_rate_radps.npy (0: not turning) and stop_yaw.npy (the stopping
+// trajectory's 4 yaw control points; zeros: none). The frames are decided in order by one decider, as a node
+// decides an episode.
 //
 // Exit status: 0 done, 1 bad input (message on stderr), 2 usage.
 #include <filesystem>
@@ -71,7 +73,7 @@ int main(int argc, char** argv) {
     const std::size_t k = static_cast<std::size_t>(m.num_ctrl_pts);
     std::vector<float> depth_x, file_depth_x, state_x, y;
     std::vector<double> ctrl, file_decode, file_forward, safety_value, stop_ctrl, stop_dt, knots;
-    std::vector<double> recovery_yaw, recovery_ctrl, turn_rate, stop_yaw;
+    std::vector<double> recovery_yaw, recovery_ctrl, turn_rate, stop_yaw, final_ctrl, final_dt;
     std::vector<int32_t> verdict, sent_kind, recovery_tries;
     for (std::size_t i = 0; i < n; ++i) {
       const RecordedFrame& f = fx.frames[i];
@@ -93,7 +95,18 @@ int main(int argc, char** argv) {
       verdict.push_back(static_cast<int32_t>(d.safety.verdict));
       safety_value.push_back(d.safety.value);
       const UniformBspline* sent = d.to_send();
-      sent_kind.push_back(sent == nullptr ? 0 : (d.recovery ? (d.steered ? 4 : 3) : (d.accepted() ? 1 : 2)));
+      sent_kind.push_back(sent == nullptr    ? 0
+                          : d.final_approach ? 5
+                          : d.recovery       ? (d.steered ? 4 : 3)
+                          : d.accepted()     ? 1
+                                             : 2);
+      if (d.final_approach) {
+        AppendCtrl(d.final_approach->ctrl_world, &final_ctrl);
+        final_dt.push_back(d.final_approach->knot_dt_s);
+      } else {
+        final_ctrl.insert(final_ctrl.end(), 12, 0.0);
+        final_dt.push_back(0.0);
+      }
       recovery_tries.push_back(d.recovery_tries);
       if (d.recovery) {
         recovery_yaw.push_back(d.recovery_yaw_deg);
@@ -138,6 +151,8 @@ int main(int argc, char** argv) {
     WriteNpy(out + "/recovery_yaw_deg.npy", NpyArray::FromDouble(recovery_yaw, {n}));
     WriteNpy(out + "/recovery_ctrl.npy", NpyArray::FromDouble(recovery_ctrl, {n, k, 3}));
     WriteNpy(out + "/turn_rate_radps.npy", NpyArray::FromDouble(turn_rate, {n}));
+    WriteNpy(out + "/final_ctrl.npy", NpyArray::FromDouble(final_ctrl, {n, 4, 3}));
+    WriteNpy(out + "/final_knot_dt.npy", NpyArray::FromDouble(final_dt, {n}));
     WriteNpy(out + "/stop_yaw.npy", NpyArray::FromDouble(stop_yaw, {n, 4}));
     WriteNpy(out + "/knots.npy", NpyArray::FromDouble(knots, {knots.size()}));
     WriteNpy(out + "/has_forward_net.npy", NpyArray::FromInt32({policy->has_forward_net() ? 1 : 0}, {1}));

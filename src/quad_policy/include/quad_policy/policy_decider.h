@@ -48,12 +48,19 @@ struct RefusalConfig {
 // (NearestDepth), the turning stop also backs away along the heading by the missing distance (TurningStop);
 // turning a box-shaped vehicle on the spot right in front of a box would touch it. Not learned: a fixed
 // behaviour of the node, off by default. turn_after_stops 0: off; turn_clearance_m 0: no back-off.
+// Final approach (final_approach_m > 0): within this distance of the goal the decider sends the trajectory
+// straight to the goal, to rest there (FinalApproach, acceleration within final_approach_acc_mps2, at least
+// the refusal's stop_min_duration_s long), when the safety layer accepts it, instead of anything else; else
+// the decision goes on as without it. The expert flies its last metre the same way (it stops replanning
+// within fsm.replan_distance_m). Not learned: a fixed behaviour of the node, off by default.
 struct RecoveryConfig {
   std::vector<double> goal_yaw_offsets_deg;
   double steer_clearance_m = 0.0;
   int turn_after_stops = 0;
   double turn_rate_dps = 45.0;
   double turn_clearance_m = 0.0;
+  double final_approach_m = 0.0;
+  double final_approach_acc_mps2 = 2.0;
 };
 // Throws std::invalid_argument naming the key and the value. With a safety config, also checks that a
 // non-zero steer_clearance_m exceeds safety.vehicle_radius_m and has turns to try.
@@ -94,13 +101,16 @@ struct Decision {
   bool steered = false;          // the recovery replaces an accepted plan (steering), not a refused one
   double turn_rate_radps = 0.0;  // non-zero: the stopping trajectory turns in place at this rate
   double turn_backoff_m = 0.0;   // and backs away along the heading by this much
-  std::vector<float> depth_x;    // network depth input (input_height x input_width)
-  StateVector state_x{};         // state vector (EncodeState)
-  std::vector<float> y;          // network output (training representation)
+  // Within recovery.final_approach_m of the goal: the trajectory straight to the goal, when the safety layer
+  // accepted it (it is then sent instead of anything else).
+  std::optional<UniformBspline> final_approach;
+  std::vector<float> depth_x;  // network depth input (input_height x input_width)
+  StateVector state_x{};       // state vector (EncodeState)
+  std::vector<float> y;        // network output (training representation)
   DecisionTimings timings;
   bool accepted() const { return safety.accepted(); }
-  // The trajectory to send to the tracker: the recovery's plan if there is one, else the proposal if
-  // accepted, else the stopping trajectory (or none).
+  // The trajectory to send to the tracker: the final approach if there is one, else the recovery's plan if
+  // there is one, else the proposal if accepted, else the stopping trajectory (or none).
   const UniformBspline* to_send() const;
 };
 

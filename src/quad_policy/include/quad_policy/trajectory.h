@@ -4,6 +4,7 @@
 
 #include <Eigen/Core>
 
+#include <optional>
 #include <vector>
 
 #include "quad_policy/preprocessing.h"
@@ -53,6 +54,16 @@ UniformBspline BrakingTrajectory(const Eigen::Vector3d& p0_world, const Eigen::V
 UniformBspline TurningStop(const Eigen::Vector3d& p0_world, const Eigen::Vector3d& v0_world,
                            const Eigen::Vector3d& backoff_world, double yaw0_rad, double rate_radps,
                            double max_decel_mps2, double min_duration_s, double start_time_s);
+
+// The final approach (recovery.final_approach_m): from p0 with velocity v0 to rest at the goal, p(t) = p0 +
+// v0 T / 3 (1 - (1 - u)^3) + b (3 u^2 - 2 u^3), u = t / T, b = goal - p0 - v0 T / 3. Its acceleration is
+// linear in u, -2 v0 (1 - u) / T + b (6 - 12 u) / T^2, so largest at an end; T is the first of min_duration_s
+// + k * 0.02 s (k = 0 .. 2000) at which both ends are within max_acc_mps2. nullopt when no such T exists. One
+// cubic (K = 4). Throws std::invalid_argument on non-finite input or non-positive limits. Python twin:
+// final_approach.
+std::optional<UniformBspline> FinalApproach(const Eigen::Vector3d& p0_world, const Eigen::Vector3d& v0_world,
+                                            const Eigen::Vector3d& goal_world, double max_acc_mps2,
+                                            double min_duration_s, double start_time_s);
 
 // Adds a heading that turns at a constant rate: yaw(t) = yaw0_rad + rate_radps t over the whole spline. A
 // uniform B-spline reproduces a linear function exactly with its control points at the Greville abscissae

@@ -84,12 +84,13 @@ class PolicyNode {
     const quad_policy::PolicyMeta& m = policy->meta();
     ROS_INFO(
         "policy_node: %s (input %dx%d, state %s, output %s %s, K = %d over %.2f s, network entry %s), "
-        "%d thread(s), refusal action %s, %zu recovery goal turn(s), steering clearance %.2f m",
+        "%d thread(s), refusal action %s, %zu recovery goal turn(s), steering clearance %.2f m, final "
+        "approach %.2f m",
         cfg_.policy_file.c_str(), m.input_width, m.input_height, ToString(m.state_frame),
         ToString(m.output_frame), ToString(m.representation), m.num_ctrl_pts, m.horizon_s,
         policy->has_forward_net() ? "forward_net" : "forward_prepared", quad_policy::TorchThreads(),
         ToString(cfg_.refusal.action), cfg_.recovery.goal_yaw_offsets_deg.size(),
-        cfg_.recovery.steer_clearance_m);
+        cfg_.recovery.steer_clearance_m, cfg_.recovery.final_approach_m);
     WarmUp(*policy);
 
     const ros::TransportHints hints = ros::TransportHints().tcpNoDelay();
@@ -371,6 +372,10 @@ class PolicyNode {
                     d.steered ? "steered" : "recovered", d.recovery_yaw_deg);
       out->reason += turn;
     }
+    if (d.final_approach) {
+      Count("final_approach");
+      out->reason += "; final approach: straight to the goal (not the network's plan)";
+    }
     if (d.turn_rate_radps != 0.0) {
       Count("turning");
       char turn[96];
@@ -379,7 +384,8 @@ class PolicyNode {
       out->reason += turn;
     }
     if (send != nullptr) {
-      out->action = d.recovery                 ? (d.steered ? "steer" : "recovery")
+      out->action = d.final_approach           ? "final_approach"
+                    : d.recovery               ? (d.steered ? "steer" : "recovery")
                     : d.accepted()             ? "policy"
                     : d.turn_rate_radps != 0.0 ? "turn"
                                                : "stop";

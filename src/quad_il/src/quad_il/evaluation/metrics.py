@@ -89,6 +89,9 @@ class ControllerSummary:
     recovered: int = 0  # refused decisions for which the recovery found a plan (config recovery)
     steered: int = 0  # accepted decisions replaced by a turned plan keeping recovery.steer_clearance_m
     turning: int = 0  # stopping trajectories that turned the vehicle in place (recovery.turn_after_stops)
+    final_approach: int = (
+        0  # decisions that sent the trajectory straight to the goal (recovery.final_approach_m)
+    )
 
 
 def summarise(controller: str, results: Sequence[EpisodeResult]) -> ControllerSummary:
@@ -122,4 +125,5 @@ def summarise(controller: str, results: Sequence[EpisodeResult]) -> ControllerSu
         recovered=sum(r.counts.get("recovered", 0) for r in rs),
         steered=sum(r.counts.get("steered", 0) for r in rs),
         turning=sum(r.counts.get("turning", 0) for r in rs),
+        final_approach=sum(r.counts.get("final_approach", 0) for r in rs),
     )

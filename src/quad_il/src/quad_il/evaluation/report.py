@@ -196,8 +196,8 @@ def write_report(
         "",
         "| controller | episodes | success | collision | timeout | reset/take-off failed | mean time to goal "
         "(s) | mean path length (m) | min clearance (m) | median min clearance (m) | decision ms median | "
-        "decision ms p99 | decisions | refusals (recovered) | steered | turning |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "decision ms p99 | decisions | refusals (recovered) | steered | turning | final approach |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for c, s in summaries.items():
         lines.append(
@@ -207,10 +207,10 @@ def write_report(
             f"{_fmt(s.mean_path_length_m, 1)} | {_fmt(s.min_clearance_m)} | "
             f"{_fmt(s.median_min_clearance_m)} | {_fmt(s.decision_ms_median, 3)} | "
             f"{_fmt(s.decision_ms_p99, 3)} | {s.decisions} | {s.refusals} ({s.recovered}) | {s.steered} | "
-            f"{s.turning} |"
+            f"{s.turning} | {s.final_approach} |"
         )
     for c, why in skipped.items():
-        lines.append(f"| {NAMES.get(c, c)} | not run: {why} |||||||||||||||")
+        lines.append(f"| {NAMES.get(c, c)} | not run: {why} ||||||||||||||||")
     lines += [
         "",
         "Success, collision and timeout are shares of all episodes; time to goal and path length are means "
@@ -222,7 +222,8 @@ def write_report(
         "config `recovery`) replaced with an accepted plan for a turned goal. Steered: accepted decisions "
         "replaced by a turned goal's plan that keeps `recovery.steer_clearance_m` from what the camera sees. "
         "Turning: refused decisions whose stopping trajectory turned the vehicle in place "
-        "(`recovery.turn_after_stops`; they stay counted as refusals).",
+        "(`recovery.turn_after_stops`; they stay counted as refusals). Final approach: decisions that sent "
+        "the trajectory straight to the goal instead (`recovery.final_approach_m`; not learned).",
         "",
     ]
     if summaries:

@@ -56,6 +56,12 @@ class RecoveryConfig(_Strict):
     # ... and while the depth frame shows a surface nearer than this, the turning stop backs away along the
     # heading by the difference (room to turn). 0: no back-off.
     turn_clearance_m: float = Field(ge=0.0, allow_inf_nan=False)
+    # Final approach: within this distance of the goal the node sends a trajectory straight to the goal, to
+    # rest there (a cubic with its acceleration within final_approach_acc_mps2), instead of the network's
+    # plan, when the safety layer accepts it; else the decision goes on as without it. The expert flies its
+    # last metre the same way (fsm.replan_distance_m). 0: off. Not learned: a fixed behaviour of the node.
+    final_approach_m: float = Field(ge=0.0, allow_inf_nan=False)
+    final_approach_acc_mps2: float = Field(gt=0.0, allow_inf_nan=False)
 
     @field_validator("goal_yaw_offsets_deg")
     @classmethod

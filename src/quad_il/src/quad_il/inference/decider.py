@@ -37,6 +37,7 @@ from quad_il.inference.safety import (
 from quad_il.inference.trajectory import (
     UniformBspline,
     braking_trajectory,
+    final_approach,
     policy_trajectory,
     turning_stop,
 )
@@ -93,12 +94,17 @@ class Decision:
     steered: bool = False  # the recovery replaces an accepted plan (steering), not a refused one
     turn_rate_radps: float = 0.0  # non-zero: the stopping trajectory turns in place at this rate
     turn_backoff_m: float = 0.0  # and backs away along the heading by this much
+    # Within recovery.final_approach_m of the goal: the trajectory straight to the goal, when the safety layer
+    # accepted it (it is then sent instead of anything else).
+    final: UniformBspline | None = None
 
     @property
     def accepted(self) -> bool:
         return self.safety.accepted
 
     def to_send(self) -> UniformBspline | None:
+        if self.final is not None:
+            return self.final
         if self.recovery is not None:
             return self.recovery
         return self.proposed if self.accepted else self.stop
@@ -133,6 +139,8 @@ class PolicyDecider:
                 turn_after_stops=0,
                 turn_rate_dps=45.0,
                 turn_clearance_m=0.0,
+                final_approach_m=0.0,
+                final_approach_acc_mps2=2.0,
             )
         )
         check_steering(self.recovery, safety)
@@ -165,6 +173,24 @@ class PolicyDecider:
         proposed = policy_trajectory(self.pre.decode(y, p, q), self.policy.meta, inp.stamp_s)
         t3 = time.perf_counter()
         result = check_trajectory(proposed, inp.p_world_body, inp.depth_m, inp.camera, self.safety)
+        final = None
+        to_goal = np.asarray(inp.goal_world, np.float64).reshape(3) - np.asarray(
+            inp.p_world_body, np.float64
+        ).reshape(3)
+        if float(np.linalg.norm(to_goal)) < self.recovery.final_approach_m:  # 0: off
+            traj = final_approach(
+                inp.p_world_body,
+                inp.v_world,
+                inp.goal_world,
+                self.recovery.final_approach_acc_mps2,
+                self.refusal.stop_min_duration_s,
+                inp.stamp_s,
+            )
+            if (
+                traj is not None
+                and check_trajectory(traj, inp.p_world_body, inp.depth_m, inp.camera, self.safety).accepted
+            ):
+                final = traj
         recovery: UniformBspline | None = None
         recovery_yaw: float | None = None
         tries = 0
@@ -179,7 +205,7 @@ class PolicyDecider:
                 proposed, inp.p_world_body, inp.depth_m, inp.camera, self.steer_safety
             ).accepted
         )
-        if not result.accepted or steering:
+        if final is None and (not result.accepted or steering):
             for yaw in self.recovery.goal_yaw_offsets_deg:
                 tries += 1
                 g = as_row(turned_goal(inp.p_world_body, inp.goal_world, yaw), 3, "goal_world")
@@ -200,7 +226,7 @@ class PolicyDecider:
         stop = None
         turn_rate = 0.0
         backoff = 0.0
-        if not result.accepted and recovery is None and self.refusal.action == "stop":
+        if not result.accepted and recovery is None and final is None and self.refusal.action == "stop":
             self.stops_in_row += 1
             n = self.recovery.turn_after_stops
             if n > 0 and self.stops_in_row >= n:
@@ -252,4 +278,5 @@ class PolicyDecider:
             steered=steering and recovery is not None,
             turn_rate_radps=turn_rate,
             turn_backoff_m=backoff,
+            final=final,
         )

@@ -81,7 +81,8 @@ class PolicyNode:
             f"{m.state_frame}, output {m.output_frame} {m.representation}, K = {m.num_ctrl_pts} over "
             f"{m.horizon_s:.2f} s, network entry {entry}), {cfg.num_threads} thread(s), refusal action "
             f"{cfg.refusal.action}, recovery goal turns {list(cfg.recovery.goal_yaw_offsets_deg)} deg, "
-            f"steering clearance {cfg.recovery.steer_clearance_m:g} m"
+            f"steering clearance {cfg.recovery.steer_clearance_m:g} m, "
+            f"final approach {cfg.recovery.final_approach_m:g} m"
         )
         self._warm_up(policy)
         self.lock = threading.Lock()
@@ -319,6 +320,9 @@ class PolicyNode:
             what = "steered" if d.steered else "recovered"
             self._count(what)
             out.reason += f"; {what} with the goal turned {d.recovery_yaw_deg:g} deg"
+        if d.final is not None:
+            self._count("final_approach")
+            out.reason += "; final approach: straight to the goal (not the network's plan)"
         if d.turn_rate_radps != 0.0:
             self._count("turning")
             out.reason += (
@@ -326,7 +330,9 @@ class PolicyNode:
                 f"backing off {d.turn_backoff_m:.2f} m"
             )
         if bspline is not None:
-            if d.recovery is not None:
+            if d.final is not None:
+                out.action = "final_approach"
+            elif d.recovery is not None:
                 out.action = "steer" if d.steered else "recovery"
             else:
                 out.action = "policy" if d.accepted else ("turn" if d.turn_rate_radps != 0.0 else "stop")

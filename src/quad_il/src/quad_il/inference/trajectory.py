@@ -159,6 +159,38 @@ def turning_stop(
     return with_constant_yaw_rate(_stop_cubic(p0, v0, b, duration, start_time_s), yaw0_rad, rate_radps)
 
 
+# The final approach's duration search: T = min_duration + k * FINAL_APPROACH_STEP_S, k = 0 .. MAX_STEPS.
+FINAL_APPROACH_STEP_S = 0.02
+FINAL_APPROACH_MAX_STEPS = 2000
+
+
+def final_approach(
+    p0_world: FloatArray,
+    v0_world: FloatArray,
+    goal_world: FloatArray,
+    max_acc_mps2: float,
+    min_duration_s: float,
+    start_time_s: float,
+) -> UniformBspline | None:
+    """The final approach (recovery.final_approach_m; C++ FinalApproach): from p0 with velocity v0 to rest at
+    the goal, p(t) = p0 + v0 T / 3 (1 - (1 - u)^3) + b (3 u^2 - 2 u^3), u = t / T, b = goal - p0 - v0 T / 3.
+    Its acceleration is linear in u, -2 v0 (1 - u) / T + b (6 - 12 u) / T^2, so largest at an end; T is the
+    first of min_duration_s + k * 0.02 s (k = 0 .. 2000) at which both ends are within max_acc_mps2. None
+    when no such T exists. One cubic (K = 4)."""
+    p0, v0 = _stop_inputs(p0_world, v0_world, max_acc_mps2, min_duration_s, start_time_s)
+    g = np.asarray(goal_world, dtype=np.float64).reshape(3)
+    if not np.all(np.isfinite(g)):
+        raise ValueError("final approach: non-finite goal")
+    for k in range(FINAL_APPROACH_MAX_STEPS + 1):
+        duration = min_duration_s + k * FINAL_APPROACH_STEP_S
+        b = g - p0 - v0 * (duration / 3.0)
+        a_start = -2.0 * v0 / duration + 6.0 * b / (duration * duration)
+        a_end = -6.0 * b / (duration * duration)
+        if max(float(np.linalg.norm(a_start)), float(np.linalg.norm(a_end))) <= max_acc_mps2:
+            return _stop_cubic(p0, v0, b, duration, start_time_s)
+    return None
+
+
 def with_constant_yaw_rate(s: UniformBspline, yaw0_rad: float, rate_radps: float) -> UniformBspline:
     """s with a heading that turns at a constant rate, yaw(t) = yaw0 + rate t: a uniform B-spline reproduces a
     linear function exactly with its control points at the Greville abscissae (i - 1) knot_dt_s."""
