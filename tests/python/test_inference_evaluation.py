@@ -238,3 +238,77 @@ def test_a_lockstep_runner_without_the_controllers_consumer_name_is_refused(
     assert main([*args, "--lockstep-consumer", "eval_runner"]) == 2
     assert "--lockstep-consumer needs --controller-consumer" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def _fake_relaunch_eval(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, failures: list[bool], retries: int
+) -> tuple[list[str], Path]:
+    """run_controller in relaunch mode with the launch and the runner faked: runner call i fails before
+    recording its episode when failures[i] is true, else records a goal."""
+    import argparse
+
+    from quad_il.evaluation import run_eval
+
+    calls: list[str] = []
+    monkeypatch.setattr(run_eval, "node_available", lambda controller: "")
+    monkeypatch.setattr(run_eval, "_launch", lambda *a: (None, {}))
+    monkeypatch.setattr(run_eval, "_stop_group", lambda proc: None)
+
+    def runner(args, controller, out, env, todo, tag, no_reset):  # noqa: ANN001, ANN202
+        calls.append(tag)
+        if failures[len(calls) - 1]:
+            raise run_eval.EvalError(f"the {controller} runner failed (exit 1); see {tag}_runner.log")
+        spec = read_episodes(todo)[0]
+        append_result(
+            out / f"{controller}.jsonl", EpisodeResult(controller, spec.index, spec.seed, "goal_reached", "")
+        )
+
+    monkeypatch.setattr(run_eval, "_run_runner", runner)
+    episodes = tmp_path / "episodes.json"
+    write_episodes(episodes, plan_eval_episodes([9000, 9001], 2, StartGoalConfig()))
+    args = argparse.Namespace(
+        episode_mode="relaunch",
+        sim_config=str(ROOT / "config" / "sim.yaml"),
+        density=None,
+        snapshots="",
+        setup_retries=retries,
+    )
+    out = tmp_path / "out"
+    out.mkdir()
+    run_eval.run_controller(args, "cpp", out, episodes)
+    return calls, out
+
+
+def test_an_episode_whose_nodes_fail_to_start_is_relaunched_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    calls, out = _fake_relaunch_eval(tmp_path, monkeypatch, [True, False, False], retries=1)
+    assert calls == ["ep000", "ep000", "ep001"]
+    assert [r.index for r in read_results(out / "cpp.jsonl")] == [0, 1]
+    err = capsys.readouterr().err
+    assert (
+        "cpp episode 0: the cpp runner failed (exit 1); see ep000_runner.log; relaunching it (attempt 2 of 2)"
+        in err
+    )
+
+
+def test_a_start_up_failure_beyond_the_retries_stops_the_controller(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from quad_il.evaluation.run_eval import EvalError
+
+    with pytest.raises(EvalError, match="the cpp runner failed"):
+        _fake_relaunch_eval(tmp_path, monkeypatch, [False, True, True], retries=1)
+    # The episode recorded before the failure is kept (a rerun resumes after it).
+    assert [r.index for r in read_results(tmp_path / "out" / "cpp.jsonl")] == [0]
+    # Without retries the first start-up failure stops it.
+    (tmp_path / "b").mkdir()
+    with pytest.raises(EvalError, match="the cpp runner failed"):
+        _fake_relaunch_eval(tmp_path / "b", monkeypatch, [True, False], retries=0)
+
+
+def test_negative_setup_retries_are_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from quad_il.evaluation.run_eval import main
+
+    assert main(["--controllers", "expert", "--out", str(tmp_path / "o"), "--setup-retries", "-1"]) == 1
+    assert "--setup-retries must be >= 0, got -1" in capsys.readouterr().err

@@ -4,7 +4,7 @@ flown by each controller (expert, Python policy, C++ policy); then the Markdown 
     python -m quad_il.evaluation.run_eval --policy runs/default/policy.ts --seeds 9000-9019 --episodes 20
         [--density 12.5] [--controllers expert,py,cpp] [--out results/eval] [--sim-config config/sim.yaml]
         [--episode-timeout-s 60] [--min-distance-m 20 --max-distance-m 30] [--snapshots 8,15]
-        [--episode-mode relaunch|reset] [--report-only]
+        [--episode-mode relaunch|reset] [--setup-retries 1] [--report-only]
 
 Per controller: a private ROS master with `roslaunch quad_il infer.launch controller:=<c>` (simulator in
 lockstep with the controller and the runner as depth consumers, tracker, controller), then `python -m
@@ -255,15 +255,29 @@ def run_controller(args: argparse.Namespace, controller: str, out: Path, episode
         sim_cfg.write_text(yaml.safe_dump(cfg))
         todo = out / "episodes" / f"{controller}_{tag}.json"
         write_episodes(todo, [spec])
-        launch, env = _launch(args, controller, out, sim_cfg, tag)
-        snap = _start_snapshots(args, controller, out, env) if n == 0 else None
-        try:
-            _run_runner(args, controller, out, env, todo, tag, no_reset=True)
-            _finish_snapshots(snap, controller)
-        finally:
-            if snap is not None:
-                _stop_group(snap)
-            _stop_group(launch)
+        for attempt in range(1 + args.setup_retries):
+            launch, env = _launch(args, controller, out, sim_cfg, tag)
+            snap = _start_snapshots(args, controller, out, env) if n == 0 and attempt == 0 else None
+            try:
+                _run_runner(args, controller, out, env, todo, tag, no_reset=True)
+                _finish_snapshots(snap, controller)
+                break
+            except EvalError as e:
+                # A runner that failed before recording the episode met a broken start-up (a node that did
+                # not answer in wall time), not an outcome of the controller: start the episode afresh.
+                recorded = any(r.index == spec.index for r in read_results(out / f"{controller}.jsonl"))
+                if recorded or attempt == args.setup_retries:
+                    raise
+                print(
+                    f"[eval] {controller} episode {spec.index}: {e}; relaunching it "
+                    f"(attempt {attempt + 2} of {1 + args.setup_retries})",
+                    file=sys.stderr,
+                    flush=True,
+                )
+            finally:
+                if snap is not None:
+                    _stop_group(snap)
+                _stop_group(launch)
     return ""
 
 
@@ -283,6 +297,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--episode-timeout-s", type=float, default=60.0, help="sim time per episode")
     ap.add_argument("--wall-timeout-s", type=float, default=7200.0, help="wall time per controller")
+    ap.add_argument(
+        "--setup-retries",
+        type=int,
+        default=1,
+        help="relaunch mode: times an episode is started afresh when its nodes fail to start up",
+    )
     ap.add_argument("--min-distance-m", type=float, default=20.0)
     ap.add_argument("--max-distance-m", type=float, default=30.0)
     ap.add_argument(
@@ -317,6 +337,8 @@ def _run(args: argparse.Namespace, write_report: Callable[..., Path]) -> int:
         bad = [c for c in controllers if c not in CONTROLLERS]
         if bad:
             raise EvalError(f"unknown controller(s) {bad} (choose from {', '.join(CONTROLLERS)})")
+        if args.setup_retries < 0:
+            raise EvalError(f"--setup-retries must be >= 0, got {args.setup_retries}")
         if any(c != "expert" for c in controllers) and not args.report_only:
             if not args.policy or not Path(args.policy).is_file():
                 raise EvalError(f"--policy must name an exported policy file, got {args.policy!r}")
