@@ -283,7 +283,7 @@ def test_an_episode_whose_nodes_fail_to_start_is_relaunched_once(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     calls, out = _fake_relaunch_eval(tmp_path, monkeypatch, [True, False, False], retries=1)
-    assert calls == ["ep000", "ep000", "ep001"]
+    assert calls == ["ep000", "ep000_retry1", "ep001"]  # the retry's logs do not overwrite the failed one's
     assert [r.index for r in read_results(out / "cpp.jsonl")] == [0, 1]
     err = capsys.readouterr().err
     assert (

@@ -256,10 +256,11 @@ def run_controller(args: argparse.Namespace, controller: str, out: Path, episode
         todo = out / "episodes" / f"{controller}_{tag}.json"
         write_episodes(todo, [spec])
         for attempt in range(1 + args.setup_retries):
-            launch, env = _launch(args, controller, out, sim_cfg, tag)
+            log_tag = tag if attempt == 0 else f"{tag}_retry{attempt}"  # keeps the failed attempt's logs
+            launch, env = _launch(args, controller, out, sim_cfg, log_tag)
             snap = _start_snapshots(args, controller, out, env) if n == 0 and attempt == 0 else None
             try:
-                _run_runner(args, controller, out, env, todo, tag, no_reset=True)
+                _run_runner(args, controller, out, env, todo, log_tag, no_reset=True)
                 _finish_snapshots(snap, controller)
                 break
             except EvalError as e:
