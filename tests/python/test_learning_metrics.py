@@ -36,7 +36,8 @@ def test_identical_splines_give_mse_0_cosine_1_bhattacharyya_0() -> None:
     a = np.concatenate([spline(seed=s) for s in range(4)])
     assert np.array_equal(metrics.mse(a, a), np.zeros(4))
     np.testing.assert_allclose(metrics.cosine_similarity(a, a), np.ones(4), rtol=0, atol=1e-15)
-    assert np.array_equal(metrics.bhattacharyya_distance(a, a), np.zeros(4))
+    assert np.array_equal(metrics.bhattacharyya_points(a, a), np.zeros(4))
+    assert np.array_equal(metrics.bhattacharyya_flat(a, a), np.zeros(4))
 
 
 def test_mse_of_a_shift_along_one_axis() -> None:
@@ -73,19 +74,50 @@ def test_bhattacharyya_of_shifted_sets_is_the_mahalanobis_term() -> None:
     d = np.array([0.3, 0.0, 0.05])
     b = a + d
     expected = 0.125 * (0.09 / (0.25 + reg) + 0.0025 / reg)  # same covariances: no log-det term
-    assert metrics.bhattacharyya_distance(a, b, reg)[0] == pytest.approx(expected)
+    assert metrics.bhattacharyya_points(a, b, reg)[0] == pytest.approx(expected)
 
 
 def test_bhattacharyya_of_scaled_sets_is_the_log_det_term() -> None:
     reg = 0.01
     s1, s2 = 0.25 + reg, 1.0 + reg  # variances in x and y; z has reg only in both
     expected = 0.5 * 2 * math.log(((s1 + s2) / 2) / math.sqrt(s1 * s2))
-    assert metrics.bhattacharyya_distance(_square(0.5), _square(1.0), reg)[0] == pytest.approx(expected)
+    assert metrics.bhattacharyya_points(_square(0.5), _square(1.0), reg)[0] == pytest.approx(expected)
+
+
+def test_flat_bhattacharyya_of_shifted_values_is_the_mean_term() -> None:
+    a = spline()
+    d = 0.4
+    var = a.reshape(-1).var()
+    # Every value moves by d: equal variances, so only (m1 - m2)^2 / (4 (v + v)) remains.
+    assert metrics.bhattacharyya_flat(a, a + d)[0] == pytest.approx(d**2 / (8 * var))
+
+
+def test_flat_bhattacharyya_of_scaled_values_is_the_variance_term() -> None:
+    a = spline() - spline().reshape(-1).mean()  # values with mean 0: scaling keeps the mean
+    c = 1.7
+    expected = 0.5 * math.log((1 + c**2) / (2 * c))
+    assert metrics.bhattacharyya_flat(a, c * a)[0] == pytest.approx(expected)
+
+
+def test_flat_bhattacharyya_of_constant_vectors() -> None:
+    x = np.full((1, 4, 3), 2.0)
+    assert metrics.bhattacharyya_flat(x, x)[0] == 0.0
+    assert metrics.bhattacharyya_flat(x, x + 1.0)[0] == math.inf
+    assert metrics.bhattacharyya_flat(x, spline(k=4))[0] == math.inf
+
+
+def test_flat_bhattacharyya_depends_on_the_frame_point_sets_do_not() -> None:
+    a, b = spline(seed=1), spline(seed=2)
+    t = np.array([25.0, -8.0, 1.5])  # the same pair far from the origin, as in the world frame
+    assert metrics.bhattacharyya_flat(a + t, b + t)[0] < 0.5 * metrics.bhattacharyya_flat(a, b)[0]
+    np.testing.assert_allclose(
+        metrics.bhattacharyya_points(a + t, b + t), metrics.bhattacharyya_points(a, b), rtol=1e-9
+    )
 
 
 def test_bhattacharyya_needs_a_positive_covariance_floor() -> None:
     with pytest.raises(ValueError, match="reg_m2 must be > 0"):
-        metrics.bhattacharyya_distance(spline(), spline(), 0.0)
+        metrics.bhattacharyya_points(spline(), spline(), 0.0)
 
 
 def test_metrics_reject_bad_shapes_and_non_finite_points() -> None:
@@ -103,9 +135,10 @@ finite = st.floats(-20, 20, allow_nan=False, width=64)
 @settings(max_examples=60, deadline=None)
 @given(arrays(np.float64, (2, 6, 3), elements=finite), arrays(np.float64, (2, 6, 3), elements=finite))
 def test_bhattacharyya_is_symmetric_and_non_negative(a: np.ndarray, b: np.ndarray) -> None:
-    dab = metrics.bhattacharyya_distance(a, b)
-    np.testing.assert_allclose(dab, metrics.bhattacharyya_distance(b, a), rtol=1e-9, atol=1e-12)
-    assert (dab >= 0).all()
+    for fn in (metrics.bhattacharyya_points, metrics.bhattacharyya_flat):
+        dab = fn(a, b)
+        np.testing.assert_allclose(dab, fn(b, a), rtol=1e-9, atol=1e-12)
+        assert (dab >= 0).all()
 
 
 @settings(max_examples=40, deadline=None)
@@ -123,7 +156,7 @@ def test_mse_and_bhattacharyya_are_invariant_under_a_rigid_motion(
     ta, tb = a @ r.T + t, b @ r.T + t
     np.testing.assert_allclose(metrics.mse(ta, tb), metrics.mse(a, b), rtol=1e-7, atol=1e-9)
     np.testing.assert_allclose(
-        metrics.bhattacharyya_distance(ta, tb), metrics.bhattacharyya_distance(a, b), rtol=1e-6, atol=1e-9
+        metrics.bhattacharyya_points(ta, tb), metrics.bhattacharyya_points(a, b), rtol=1e-6, atol=1e-9
     )
 
 
@@ -172,8 +205,18 @@ def test_evaluation_writes_per_sample_metrics_summary_and_figures(
     assert m["cosine_local"]["ci95_half_width"] == pytest.approx(
         metrics.mean_ci95(np.array([float(r["cosine_local"]) for r in rows])).half_width
     )
+    bp = np.array([float(r["bhattacharyya_points_world"]) for r in rows])
+    np.testing.assert_allclose(bp, [float(r["bhattacharyya_points_local"]) for r in rows], rtol=1e-5)
+    assert m["bhattacharyya_flat_world"]["mean"] == pytest.approx(
+        np.mean([float(r["bhattacharyya_flat_world"]) for r in rows])
+    )
     md = (out / "summary.md").read_text()
     assert "| MSE (m^2) | world |" in md and "none used in training" in md and "0.9446" in md
+    # The thesis's 0.0254 and its target sit on the flattened form's world row only.
+    rows_md = {"/".join(c.strip() for c in r.split("|")[1:3]): r for r in md.splitlines() if "|" in r}
+    flat_row = rows_md["Bhattacharyya distance, flattened values (thesis form)/world"]
+    assert "0.0254" in flat_row and "< 0.0254" in flat_row
+    assert "0.0254" not in rows_md["Bhattacharyya distance, 3-D point sets/world"]
     import matplotlib.image as mpimg
 
     for frame in ("world", "local"):

@@ -4,18 +4,28 @@ Inputs are control-point sets (N, K, 3) in metres, in one frame. Definitions (al
 
 * MSE: mean over the 3K elements of the flattened sets of the squared difference (m^2), equation (3.1).
 * Cosine similarity: a.b / (|a| |b|) of the flattened sets (1 for both zero, 0 when exactly one is zero).
-* Bhattacharyya distance between Gaussian fits of the two point sets. Each set of K points gets the maximum-
-  likelihood mean mu and covariance S = (1/K) sum (x - mu)(x - mu)^T, regularised as S + r I with r =
-  `reg_m2` (default 0.01 m^2, i.e. a 0.1 m standard deviation floor: the planner's map resolution, and what
-  keeps the nearly collinear control points of a straight flight from giving singular covariances). With
-  S = (S_1 + S_2) / 2:
-      D_B = 1/8 (mu_1 - mu_2)^T S^-1 (mu_1 - mu_2) + 1/2 ln(det S / sqrt(det S_1 det S_2)).
-  Symmetric, >= 0 (det is log-concave), and 0 exactly when the two fits are identical.
-  (The thesis author's helper compared 50-bin histograms but summed only 8 bins; that form is not reproduced.)
+* Bhattacharyya distance, two forms:
+  - `bhattacharyya_flat`, the thesis's form: the thesis compares the distributions of the 3K values of the
+    flattened control-point vectors (its helper binned them into 50-bin histograms, and summed only 8 of the
+    bins). Here each flattened vector's values get a Gaussian fit, mean m and ML variance s^2 (ddof 0), and
+        D_B = (m_1 - m_2)^2 / (4 (s_1^2 + s_2^2)) + 1/2 ln((s_1^2 + s_2^2) / (2 s_1 s_2)),
+    the closed form for two 1-D Gaussians. A fit instead of a histogram because 3K = 30 values in 50 bins
+    leave most bins empty or single, and the histogram's value then jumps as a value crosses a bin edge.
+    Like the thesis's, it compares value distributions only: it does not see which coordinate a value
+    belongs to or the order of the points (MSE and the point-set form do).
+  - `bhattacharyya_points`: Gaussian fits of the two sets of K points in 3-D. Each set gets the maximum-
+    likelihood mean mu and covariance S = (1/K) sum (x - mu)(x - mu)^T, regularised as S + r I with r =
+    `reg_m2` (default 0.01 m^2, i.e. a 0.1 m standard deviation floor: the planner's map resolution, and what
+    keeps the nearly collinear control points of a straight flight from giving singular covariances). With
+    S = (S_1 + S_2) / 2:
+        D_B = 1/8 (mu_1 - mu_2)^T S^-1 (mu_1 - mu_2) + 1/2 ln(det S / sqrt(det S_1 det S_2)).
+    It has no counterpart in the thesis; its scale is set by r (a 0.1 m offset across the flight direction
+    alone gives 1/8).
+  Both are symmetric, >= 0, and 0 exactly when the two fits are identical.
 
-MSE and D_B are invariant under a rigid motion applied to both sets (so equal in the world and local
-frames); the cosine similarity is not: in the world frame (the thesis's) it is dominated by the absolute
-position.
+MSE and the point-set D_B are invariant under a rigid motion applied to both sets (so equal in the world and
+local frames); the cosine similarity and the flattened D_B are not: in the world frame (the thesis's) both are
+dominated by the absolute position.
 """
 
 from __future__ import annotations
@@ -71,9 +81,29 @@ def gaussian_fit(
     return mu, cov + reg_m2 * np.eye(3)
 
 
-def bhattacharyya_distance(
+def bhattacharyya_flat(a: NDArray[np.floating], b: NDArray[np.floating]) -> NDArray[np.float64]:
+    """D_B between 1-D Gaussian fits of the values of each flattened control-point vector (thesis form).
+
+    A vector whose values are all equal has variance 0: two such vectors with the same value give 0, any
+    other pair involving one gives +inf (the Gaussians' overlap is then zero or undefined)."""
+    a64, b64 = _check_pair(a, b)
+    fa = a64.reshape(len(a64), -1)
+    fb = b64.reshape(len(b64), -1)
+    m1, m2 = fa.mean(axis=1), fb.mean(axis=1)
+    v1, v2 = fa.var(axis=1), fb.var(axis=1)
+    out = np.full(len(fa), np.inf)
+    ok = (v1 > 0) & (v2 > 0)
+    vs = v1[ok] + v2[ok]
+    out[ok] = (m1[ok] - m2[ok]) ** 2 / (4.0 * vs) + 0.5 * np.log(vs / (2.0 * np.sqrt(v1[ok] * v2[ok])))
+    out[(v1 == 0) & (v2 == 0) & (m1 == m2)] = 0.0
+    # Non-negative in exact arithmetic (AM >= GM); remove rounding noise of order 1e-16 only.
+    return np.where(np.abs(out) < 1e-12, np.abs(out), out)
+
+
+def bhattacharyya_points(
     a: NDArray[np.floating], b: NDArray[np.floating], reg_m2: float = DEFAULT_BHATTACHARYYA_REG_M2
 ) -> NDArray[np.float64]:
+    """D_B between regularised 3-D Gaussian fits of the two sets of K control points."""
     if not reg_m2 > 0.0:
         raise ValueError(f"reg_m2 must be > 0 (covariances of collinear points are singular), got {reg_m2}")
     a64, b64 = _check_pair(a, b)
