@@ -22,14 +22,20 @@ from quad_il.inference.config import (
     config_from_tree,
     load_policy_config,
 )
-from quad_il.inference.decider import DecisionInputs, PolicyDecider, turned_goal
+from quad_il.inference.decider import Decision, DecisionInputs, PolicyDecider, turned_goal
 from quad_il.inference.fixture import DecisionFixture, FixtureError, read_fixture, write_fixture
 from quad_il.inference.geometry import yaw_of
 from quad_il.inference.meta import PolicyFormatError, parse_policy_meta
-from quad_il.inference.policy import LoadedPolicy
+from quad_il.inference.policy import LoadedPolicy, ordered_plans
 from quad_il.inference.preprocessing import PolicyPreprocessing, as_row
 from quad_il.inference.random_policy import export_random_policy
-from quad_il.inference.safety import CameraModel, SafetyVerdict, nearest_depth, trajectory_in_view
+from quad_il.inference.safety import (
+    CameraModel,
+    SafetyResult,
+    SafetyVerdict,
+    nearest_depth,
+    trajectory_in_view,
+)
 from quad_il.inference.trajectory import (
     UniformBspline,
     braking_trajectory,
@@ -50,6 +56,9 @@ def policies(tmp_path_factory: pytest.TempPathFactory) -> dict[str, LoadedPolicy
     small = dict(input_height=32, input_width=32)
     return {
         "world": LoadedPolicy(export_random_policy(d / "w.ts", ModelConfig(**small), seed=1)),
+        "world_h3": LoadedPolicy(
+            export_random_policy(d / "h3.ts", ModelConfig(**small, hypotheses=3), seed=3)
+        ),
         "local_poly_net": LoadedPolicy(
             export_random_policy(
                 d / "l.ts",
@@ -134,6 +143,53 @@ def test_metadata_errors_name_the_key(policies) -> None:
         PolicyFormatError, match="'preprocessing.velocity_input' must be true or false, got 'no'"
     ):
         parse_policy_meta(blind, "p.ts")
+
+
+def test_hypotheses_metadata_is_read_checked_and_defaults_to_one(policies) -> None:
+    h3 = policies["world_h3"].meta
+    assert h3.hypotheses == 3 and h3.output_dim == 30 and h3.network_output_dim == 93
+    meta = copy.deepcopy(policies["world"].raw_meta)
+    del meta["output"]["hypotheses"]  # files exported before multiple hypotheses
+    old = parse_policy_meta(meta, "p.ts")
+    assert old.hypotheses == 1 and old.network_output_dim == old.output_dim == 30
+    for bad in (0, 9, 2.5, True, "3"):
+        meta["output"]["hypotheses"] = bad
+        with pytest.raises(PolicyFormatError, match=r"'output.hypotheses' must be an integer in \[1, 8\]"):
+            parse_policy_meta(meta, "p.ts")
+
+
+def test_ordered_plans_put_the_most_confident_first_ties_by_index_nan_last(policies) -> None:
+    meta = policies["world_h3"].meta
+    plans = torch.arange(90, dtype=torch.float32)
+
+    def order(logits: list[float]) -> list[int]:
+        y = torch.cat([plans, torch.tensor(logits)]).reshape(1, -1)
+        out = ordered_plans(y, meta)
+        for i, plan in out:
+            assert torch.equal(plan[0], plans[30 * i : 30 * (i + 1)])
+        return [i for i, _ in out]
+
+    assert order([0.1, 2.0, -1.0]) == [1, 0, 2]
+    assert order([1.0, 1.0, 1.0]) == [0, 1, 2]
+    assert order([float("nan"), 0.0, 3.0]) == [2, 1, 0]
+    one = policies["world"].meta
+    y = torch.rand(1, 30)
+    [(i, plan)] = ordered_plans(y, one)
+    assert i == 0 and torch.equal(plan, y)
+    with pytest.raises(RuntimeError, match="network output has 92 values, the policy declares 93"):
+        ordered_plans(torch.zeros(1, 92), meta)
+
+
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")
+def test_the_file_refuses_metadata_with_another_number_of_hypotheses(tmp_path: Path, policies) -> None:
+    module, meta = load_exported(policies["world_h3"].path)
+    meta["output"]["hypotheses"] = 2
+    torch.jit.save(module, str(tmp_path / "lying.ts"), _extra_files={META_FILE: json.dumps(meta)})
+    with pytest.raises(
+        PolicyFormatError,
+        match="attribute num_hypotheses = 3 disagrees with the metadata's output.hypotheses 2",
+    ):
+        LoadedPolicy(tmp_path / "lying.ts")
 
 
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")
@@ -395,6 +451,75 @@ def test_the_recovery_turns_the_goal_until_a_plan_is_accepted_and_in_view(polici
     )
     d = decider.decide(free)
     assert d.accepted and d.recovery_tries == 0 and d.to_send() is d.proposed
+
+
+class _GoalFan(LoadedPolicy):
+    """Test double with three hypotheses: lines at 1.5 m/s towards the goal turned by 0, +30 and -30 deg, with
+    the given confidence logits."""
+
+    logits = (1.0, 0.5, 0.0)
+
+    def run(self, depth_x, state_x, p, v, q, goal):  # noqa: ANN001, ANN201 - LoadedPolicy.run's signature
+        k, dt = self.meta.num_ctrl_pts, self.meta.knot_dt_s
+        p64 = p[0].double()
+        tau = (torch.arange(k, dtype=torch.float64) - 1.0) * dt
+        parts = []
+        for yaw in (0.0, 30.0, -30.0):
+            g64 = torch.from_numpy(turned_goal(p64.numpy(), goal[0].double().numpy(), yaw))
+            direction = (g64 - p64) / torch.linalg.norm(g64 - p64)
+            ctrl = (p64 + 1.5 * tau[:, None] * direction).float().unsqueeze(0)
+            with torch.inference_mode():
+                parts.append(self.module.encode_target(ctrl, p, q).reshape(-1))
+        return torch.cat([*parts, torch.tensor(self.logits)]).reshape(1, -1)
+
+
+def test_a_refused_plan_is_replaced_by_the_next_hypothesis_before_any_turned_goal(policies) -> None:
+    cfg = load_policy_config(CONFIG)
+    policy = _GoalFan(policies["world_h3"].path)
+    q = np.array([0.0, 0.0, 0.0, 1.0])
+    inp = DecisionInputs(2.0, _wall_ahead(), _camera(), np.zeros(3), np.zeros(3), q, np.array([10.0, 0, 0]))
+    decider = PolicyDecider(policy, cfg.safety, cfg.refusal, _recovery([20.0, -20.0]))
+    d = decider.decide(inp)
+    # The most confident plan (straight) runs into the wall: refused, and that is the verdict counted.
+    assert d.proposed_hypothesis == 0 and d.safety.verdict == SafetyVerdict.COLLISION_IN_DEPTH
+    # Hypothesis 1 (+30 deg) passes without asking the network about a turned goal.
+    assert d.recovery_hypothesis == 1 and d.recovery_yaw_deg == 0.0 and d.recovery_tries == 0
+    assert d.to_send() is d.recovery
+    heading = d.recovery.position(np.array([1.0]))[0]
+    assert np.degrees(np.arctan2(heading[1], heading[0])) == pytest.approx(30.0, abs=1e-3)
+    assert d.recovery_text(3) == "; recovered with hypothesis 2 of 3"
+    assert len(d.y) == 93
+    # The confidences choose: with -30 deg more confident than +30 deg the recovery takes that one.
+    policy.logits = (1.0, 0.0, 0.5)
+    d = decider.decide(inp)
+    assert d.recovery_hypothesis == 2 and d.recovery_text(3) == "; recovered with hypothesis 3 of 3"
+    # The most confident plan flies when it is clear, whatever its index.
+    policy.logits = (0.0, 2.0, 1.0)
+    free = dataclasses.replace(inp, depth_m=np.full((50, 70), np.inf, np.float32))
+    d = decider.decide(free)
+    assert d.accepted and d.proposed_hypothesis == 1 and d.recovery is None and d.to_send() is d.proposed
+
+
+def _stub_decision() -> Decision:
+    line = UniformBspline(0.0, 0.25, np.zeros((4, 3)))
+    return Decision(
+        safety=SafetyResult(SafetyVerdict.ACCEPTED, "ok"),
+        proposed=line,
+        stop=None,
+        depth_x=np.zeros((2, 2), np.float32),
+        state_x=np.zeros(13, np.float32),
+        y=np.zeros(12, np.float32),
+    )
+
+
+def test_recovery_text_names_turn_and_hypothesis() -> None:
+    d = dataclasses.replace(
+        _stub_decision(), recovery=_stub_decision().proposed, recovery_yaw_deg=20.0, recovery_hypothesis=0
+    )
+    assert d.recovery_text(1) == "; recovered with the goal turned 20 deg"
+    assert d.recovery_text(3) == "; recovered with the goal turned 20 deg, hypothesis 1 of 3"
+    assert dataclasses.replace(d, steered=True).recovery_text(1) == "; steered with the goal turned 20 deg"
+    assert dataclasses.replace(d, recovery=None).recovery_text(3) == ""
 
 
 def test_steering_turns_away_from_a_wall_that_an_accepted_plan_comes_near(policies) -> None:

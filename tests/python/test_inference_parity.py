@@ -21,7 +21,11 @@ from quad_il.inference.config import load_policy_config
 from quad_il.inference.decider import PolicyDecider, fixture_inputs
 from quad_il.inference.fixture import DecisionFixture, write_fixture
 from quad_il.inference.policy import LoadedPolicy
-from quad_il.inference.random_policy import export_goal_line_policy, export_random_policy
+from quad_il.inference.random_policy import (
+    export_goal_fan_policy,
+    export_goal_line_policy,
+    export_random_policy,
+)
 from quad_il.inference.safety import SafetyVerdict, check_trajectory, trajectory_in_view
 from quad_il.learning.config import ModelConfig
 from quad_il.learning.synthetic import make_synthetic_arrays
@@ -149,6 +153,11 @@ POLICIES = {
         ),
         True,
     ),
+    # Three hypotheses: the decoded plan is the most confident one's; the others feed the recovery.
+    "local_bspline_hypotheses": (
+        ModelConfig(input_height=32, input_width=32, state_frame="local", output_frame="local", hypotheses=3),
+        False,
+    ),
     # Plans that continue the vehicle's motion (output prior): they reach surfaces, so the steering searches.
     "local_bspline_cv_prior": (
         ModelConfig(
@@ -235,6 +244,11 @@ def test_trajectory_layout_and_decisions_agree(run_both) -> None:
         assert any(d.accepted and d.recovery_tries > 0 for d in py)  # the steering searched
     py_yaw = [np.nan if d.recovery_yaw_deg is None else d.recovery_yaw_deg for d in py]
     np.testing.assert_array_equal(cpp["recovery_yaw_deg"], py_yaw)
+    np.testing.assert_array_equal(cpp["proposed_hypothesis"], [d.proposed_hypothesis for d in py])
+    py_h = [-1 if d.recovery_hypothesis is None else d.recovery_hypothesis for d in py]
+    np.testing.assert_array_equal(cpp["recovery_hypothesis"], py_h)
+    if name == "local_bspline_hypotheses":
+        assert cpp["y"].shape[1] == 3 * (30 + 1)  # every hypothesis and its logit
     for i, d in enumerate(py):
         if d.recovery is not None:
             np.testing.assert_allclose(cpp["recovery_ctrl"][i], d.recovery.ctrl_world, rtol=0, atol=TOL)
@@ -340,6 +354,43 @@ def test_recovery_and_steering_succeed_alike_with_a_goal_seeking_policy(tmp_path
         np.testing.assert_allclose(cpp["recovery_ctrl"][i], py[i].recovery.ctrl_world, rtol=0, atol=TOL)
         heading = py[i].recovery.position(np.array([1.0]))[0] - fx.p_world_body[i]
         assert np.degrees(np.arctan2(heading[1], heading[0])) == pytest.approx(20.0, abs=1e-3)
+
+
+def test_a_refused_plan_is_replaced_by_another_hypothesis_alike_in_both_deciders(tmp_path: Path) -> None:
+    """The goal-fan double: three hypotheses, lines towards the goal turned by 0, +20 and -20 deg, with logits
+    0.5, 1.0, 0.0 (the +20 deg line is the most confident). The vehicle hovers at the origin facing +x, goal
+    10 m ahead. Frames: nothing seen (the +20 deg plan is flown); a wall 1.2 m ahead on the left half of the
+    view (+20 deg refused, the straight line too, -20 deg accepted: hypothesis 3 without a turned goal); the
+    wall across the whole view (every hypothesis and every turned goal refused: the stopping trajectory)."""
+    policy_path = export_goal_fan_policy(tmp_path / "goal_fan.ts", [0.0, 20.0, -20.0], [0.5, 1.0, 0.0])
+    n = 3
+    depth = np.full((n, H, W), np.inf, np.float32)
+    depth[1][:, : W // 2 + 8] = 1.2  # the image's left half is the vehicle's left (+y)
+    depth[2][:] = 1.2
+    fx, config = _hover_scene(
+        tmp_path,
+        depth,
+        np.array([0.0, 0.0, 1.5]),
+        np.array([0.0, 0.0, 0.0, 1.0]),
+        np.tile([10.0, 0.0, 1.5], (n, 1)),
+        {"goal_yaw_offsets_deg: []": "goal_yaw_offsets_deg: [40.0, -40.0]"},
+    )
+    cfg = load_policy_config(config)
+    cpp = _replay(policy_path, tmp_path / "fx", config, tmp_path / "cpp")
+    py = _decide_all(PolicyDecider(LoadedPolicy(policy_path), cfg.safety, cfg.refusal, cfg.recovery), fx)
+    assert _sent_kinds(py) == [1, 3, 2]
+    assert [d.proposed_hypothesis for d in py] == [1, 1, 1]
+    assert [d.recovery_hypothesis for d in py] == [None, 2, None]
+    assert [d.recovery_tries for d in py] == [0, 0, 2]
+    np.testing.assert_array_equal(cpp["sent_kind"], _sent_kinds(py))
+    np.testing.assert_array_equal(cpp["proposed_hypothesis"], [1, 1, 1])
+    np.testing.assert_array_equal(cpp["recovery_hypothesis"], [-1, 2, -1])
+    np.testing.assert_array_equal(cpp["recovery_tries"], [0, 0, 2])
+    np.testing.assert_array_equal(cpp["recovery_yaw_deg"], [np.nan, 0.0, np.nan])
+    np.testing.assert_allclose(cpp["recovery_ctrl"][1], py[1].recovery.ctrl_world, rtol=0, atol=TOL)
+    heading = py[1].recovery.position(np.array([1.0]))[0] - fx.p_world_body[1]
+    assert np.degrees(np.arctan2(heading[1], heading[0])) == pytest.approx(-20.0, abs=1e-3)
+    np.testing.assert_allclose(cpp["ctrl_world"], cpp["file_decode"], rtol=0, atol=TOL)
 
 
 def test_the_final_approach_is_flown_alike_in_both_deciders(tmp_path: Path) -> None:

@@ -9,7 +9,13 @@ import torch
 from torch.optim.lr_scheduler import CosineAnnealingWarmRestarts
 
 from quad_il.learning.config import SchedulerConfig
-from quad_il.learning.losses import batch_loss, mse_per_sample, per_sample_loss, sse_per_sample
+from quad_il.learning.losses import (
+    batch_loss,
+    mse_per_sample,
+    per_sample_loss,
+    sse_per_sample,
+    wta_per_sample,
+)
 from quad_il.learning.schedulers import (
     CustomCosineDecayRestarts,
     build_scheduler,
@@ -51,6 +57,79 @@ def test_loss_rejects_bad_inputs() -> None:
         mse_per_sample(torch.zeros(2, 3), torch.zeros(2, 4))
     with pytest.raises(ValueError, match="'mse' or 'sse'"):
         per_sample_loss("mae", torch.zeros(2, 3), torch.zeros(2, 3))  # type: ignore[arg-type]
+
+
+def test_relaxed_winner_takes_all_by_hand() -> None:
+    target = torch.tensor([[0.0, 0.0], [1.0, 1.0]])
+    # Sample 0: hypothesis MSEs 1, 0.25, 4 -> winner 1; sample 1: 0, 1, 1 -> winner 0.
+    plans = torch.tensor(
+        [
+            [[1.0, 1.0], [0.5, -0.5], [2.0, 2.0]],
+            [[1.0, 1.0], [2.0, 0.0], [0.0, 2.0]],
+        ]
+    )
+    logits = torch.tensor([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    per, winner = wta_per_sample("mse", plans, logits, target, relax=0.1, confidence_weight=0.5)
+    assert winner.tolist() == [1, 0]
+    ce0 = math.log(3.0)  # uniform logits
+    ce1 = -math.log(math.exp(2.0) / (math.exp(2.0) + 2.0))
+    expected0 = 0.9 * 0.25 + 0.05 * (1.0 + 4.0) + 0.5 * ce0
+    expected1 = 0.9 * 0.0 + 0.05 * (1.0 + 1.0) + 0.5 * ce1
+    torch.testing.assert_close(per, torch.tensor([expected0, expected1]))
+    # SSE per hypothesis is MSE times the width; no relaxation and no confidence term: the winner's loss only.
+    sse, _ = wta_per_sample("sse", plans, logits, target, relax=0.0, confidence_weight=0.0)
+    torch.testing.assert_close(sse, torch.tensor([0.5, 0.0]))
+
+
+def test_winner_takes_all_trains_only_the_winner_and_the_logits() -> None:
+    target = torch.tensor([[0.0, 0.0]])
+    plans = torch.tensor([[[1.0, 1.0], [0.5, -0.5]]], requires_grad=True)
+    logits = torch.zeros(1, 2, requires_grad=True)
+    per, _ = wta_per_sample("mse", plans, logits, target, relax=0.0, confidence_weight=1.0)
+    per.sum().backward()
+    assert not plans.grad[0, 0].any()  # the loser gets nothing without relaxation
+    torch.testing.assert_close(plans.grad[0, 1], torch.tensor([0.5, -0.5]))  # d/dx mean(x^2) = x
+    torch.testing.assert_close(logits.grad, torch.tensor([[0.5, -0.5]]))  # softmax - one_hot(winner 1)
+
+
+def test_winner_takes_all_keeps_two_modes_that_one_plan_averages() -> None:
+    """The same input labelled left (+1) half of the time and right (-1) the other half, as the expert passes
+    a box on either side: one plan learns the average, straight through the box; two hypotheses learn both."""
+    target = torch.tensor([[1.0, 0.5], [-1.0, 0.5]]).repeat(8, 1)
+
+    def fit(m: int) -> torch.Tensor:
+        torch.manual_seed(0)
+        plans = torch.nn.Parameter(0.1 * torch.randn(1, m, 2))
+        logits = torch.nn.Parameter(torch.zeros(1, m))
+        opt = torch.optim.Adam([plans, logits], lr=0.05)
+        for _ in range(400):
+            opt.zero_grad()
+            p = plans.expand(len(target), m, 2)
+            if m == 1:
+                loss = batch_loss("mse", p[:, 0], target)[0]
+            else:
+                loss = wta_per_sample("mse", p, logits.expand(len(target), m), target, 0.05, 0.1)[0].mean()
+            loss.backward()
+            opt.step()
+        return plans.detach()[0]
+
+    single = fit(1)
+    torch.testing.assert_close(single[0], torch.tensor([0.0, 0.5]), atol=0.02, rtol=0)
+    pair = fit(2)
+    firsts = sorted(float(x) for x in pair[:, 0])
+    # Each wins half the samples: 0.95 (x - 1) + 0.05 (x + 1) = 0, so the relaxation leaves them at -+0.9.
+    assert firsts == pytest.approx([-0.9, 0.9], abs=0.02)
+    torch.testing.assert_close(pair[:, 1], torch.tensor([0.5, 0.5]), atol=0.02, rtol=0)
+
+
+def test_winner_takes_all_rejects_bad_inputs() -> None:
+    plans, logits, target = torch.zeros(2, 3, 4), torch.zeros(2, 3), torch.zeros(2, 4)
+    with pytest.raises(ValueError, match="expected plans"):
+        wta_per_sample("mse", plans, logits, torch.zeros(2, 5), 0.05, 0.1)
+    with pytest.raises(ValueError, match="at least 2 hypotheses"):
+        wta_per_sample("mse", plans[:, :1], logits[:, :1], target, 0.05, 0.1)
+    with pytest.raises(ValueError, match="relax must be in"):
+        wta_per_sample("mse", plans, logits, target, 1.0, 0.1)
 
 
 # ------------------------------------------------------------------------------------------------- schedulers

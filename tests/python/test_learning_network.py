@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 
-from quad_il.learning.config import ModelConfig
+from quad_il.learning.config import ModelConfig, load_config
 from quad_il.learning.export import (
     META_FILE,
     export_torchscript,
@@ -21,7 +21,7 @@ from quad_il.learning.export import (
     policy_metadata,
 )
 from quad_il.learning.mobilenet_v3 import MobileNetV3, adapt_stem_channels, count_parameters
-from quad_il.learning.model import Policy, PolicyNet, build_policy, mlp
+from quad_il.learning.model import Policy, PolicyNet, build_policy, head_output_dim, mlp
 from quad_il.learning.preprocessing import (
     DepthPreprocessor,
     OutputCodec,
@@ -450,6 +450,79 @@ def test_depth_grid_config_is_checked_with_a_clear_message() -> None:
         PolicyNet("small", out_dim=30, depth_grid=(0, 3))
 
 
+# ---------------------------------------------------------------------------------------- multiple hypotheses
+def test_hypotheses_head_gives_m_plans_and_m_logits() -> None:
+    net = PolicyNet("small", out_dim=30, hypotheses=3)
+    assert count_parameters(net.head) == 128 * 93 + 93  # 3 plans of 30 values + 3 logits
+    assert head_output_dim(30, 1) == 30 and head_output_dim(30, 3) == 93
+    with torch.no_grad():
+        assert net(torch.rand(2, 1, 32, 32), torch.rand(2, 13)).shape == (2, 93)
+    with pytest.raises(ValueError, match="hypotheses must be >= 1"):
+        PolicyNet("small", out_dim=30, hypotheses=0)
+
+
+def test_select_flies_the_plan_with_the_largest_logit_first_on_ties() -> None:
+    policy = build_policy(
+        ModelConfig(input_height=32, input_width=32, state_frame="local", output_frame="local", hypotheses=3),
+        10,
+        2.0,
+    )
+    d = policy.plan_dim
+    plans = torch.arange(3 * d, dtype=torch.float32).reshape(1, 3, d).repeat(3, 1, 1)
+    logits = torch.tensor([[0.1, 2.0, -1.0], [5.0, 5.0, 0.0], [-3.0, -2.0, -1.0]])
+    y = torch.cat([plans.reshape(3, -1), logits], dim=1)
+    got_plans, got_logits = policy.split_hypotheses(y)
+    assert torch.equal(got_plans, plans) and torch.equal(got_logits, logits)
+    chosen = policy.select(y)
+    assert torch.equal(chosen[0], plans[0, 1]) and torch.equal(chosen[1], plans[0, 0])
+    assert torch.equal(chosen[2], plans[0, 2])
+    with pytest.raises(RuntimeError, match="head width"):
+        policy.split_hypotheses(y[:, :-1])
+    # forward decodes the selected plan.
+    torch.manual_seed(1)
+    inputs = (torch.rand(2, 40, 40) * 9, torch.rand(2, 3), torch.rand(2, 3), yaw_quat(0.4).repeat(2, 1))
+    goal = torch.rand(2, 3) * 10
+    with torch.no_grad():
+        policy.eval()
+        y = policy.forward_prepared(policy.preprocess_depth(inputs[0]), *inputs[1:], goal)
+        expected = policy.decode(policy.select(y), inputs[1], inputs[3])
+        torch.testing.assert_close(policy(*inputs, goal), expected)
+
+
+def test_prior_is_added_to_every_hypothesis_and_not_to_the_logits() -> None:
+    cfg = ModelConfig(
+        input_height=32,
+        input_width=32,
+        state_frame="local",
+        output_frame="local",
+        output_prior="constant_velocity",
+        hypotheses=2,
+    )
+    policy = build_policy(cfg, 10, 2.0).eval()
+    with torch.no_grad():
+        policy.net.head.weight.zero_()
+        policy.net.head.bias.zero_()
+        y = policy.forward_prepared(
+            torch.rand(1, 1, 32, 32),
+            torch.zeros(1, 3),
+            torch.tensor([[2.0, 0, 0]]),
+            yaw_quat(0.0),
+            torch.tensor([[9.0, 0, 1.0]]),
+        )
+    plans, logits = policy.split_hypotheses(y)
+    torch.testing.assert_close(plans[0, 0], plans[0, 1])
+    assert plans.abs().sum() > 0 and not logits.any()
+
+
+def test_hypotheses_config_is_checked_with_a_clear_message() -> None:
+    assert ModelConfig().hypotheses == 1  # the thesis's single plan by default
+    for bad in (0, 9):
+        with pytest.raises(ValueError, match="hypotheses"):
+            ModelConfig(hypotheses=bad)
+    with pytest.raises(ValueError, match="eil scores one plan per row"):
+        load_config([], ["model.hypotheses=3", "optim.loss=eil"])
+
+
 # ------------------------------------------------------------------------------------------------ TorchScript
 def make_backbone_head_matter(policy: Policy, seed: int) -> Policy:
     """A trained-like state for fold and export tests (eval mode on return).
@@ -510,6 +583,7 @@ def net_inputs(policy: Policy, b: int, seed: int) -> tuple[torch.Tensor, torch.T
         {"state_frame": "local", "output_frame": "local", "output": "polynomial", "poly_degree": 4},
         {"state_frame": "local", "output_frame": "local", "output_prior": "constant_velocity"},
         {"state_frame": "local", "output_frame": "local", "depth_grid": [4, 5]},
+        {"state_frame": "local", "output_frame": "local", "hypotheses": 3},
     ],
 )
 def test_torchscript_export_equals_eager_policy(tmp_path: Path, kw: dict[str, object]) -> None:
@@ -543,11 +617,15 @@ def test_torchscript_export_equals_eager_policy(tmp_path: Path, kw: dict[str, ob
         # Channels-last input (what a channels_last training loop would pass) gives the same.
         y_cl = module.forward_prepared(depth_x.contiguous(memory_format=torch.channels_last), p, v, q, goal)
         torch.testing.assert_close(y_cl, y_file, atol=1e-6, rtol=1e-6)
-        ctrl = policy.decode(y, p, q)
-        torch.testing.assert_close(module.decode(y, p, q), ctrl, atol=1e-5, rtol=1e-5)
+        torch.testing.assert_close(module.select(y), policy.select(y))
+        for file_part, part in zip(module.split_hypotheses(y), policy.split_hypotheses(y), strict=True):
+            torch.testing.assert_close(file_part, part)
+        ctrl = policy.decode(policy.select(y), p, q)
+        torch.testing.assert_close(module.decode(policy.select(y), p, q), ctrl, atol=1e-5, rtol=1e-5)
         torch.testing.assert_close(module.encode_target(ctrl, p, q), policy.encode_target(ctrl, p, q))
     assert (module.input_height, module.input_width, module.max_depth_m) == (32, 40, 8.0)
     assert (module.num_ctrl_pts, module.horizon_s) == (10, 2.0)
+    assert module.num_hypotheses == loaded_meta["output"]["hypotheses"] == kw.get("hypotheses", 1)
     assert loaded_meta == json.loads(json.dumps(meta))
     assert loaded_meta["preprocessing"]["input_width"] == 40
     assert loaded_meta["preprocessing"]["state_frame"] == kw.get("state_frame", "world")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -113,6 +114,20 @@ def test_two_runs_with_the_same_seed_give_identical_losses(dataset: Path, tmp_pa
     assert all(torch.equal(ckpt_a[k], ckpt_b[k]) for k in ckpt_a)
     c = Trainer(tiny_config(dataset, tmp_path, "c", "optim.epochs=1", "run.seed=1")).fit()
     assert loss_rows(c.run_dir)[0] != rows_a[0]
+
+
+def test_multiple_hypotheses_train_deterministically_and_export(dataset: Path, tmp_path: Path) -> None:
+    extra = ("optim.epochs=2", "model.hypotheses=3", "log.export_torchscript=true")
+    a = Trainer(tiny_config(dataset, tmp_path, "mh_a", *extra)).fit()
+    b = Trainer(tiny_config(dataset, tmp_path, "mh_b", *extra)).fit()
+    assert loss_rows(a.run_dir) == loss_rows(b.run_dir)
+    single = Trainer(tiny_config(dataset, tmp_path, "mh_1", "optim.epochs=2")).fit()
+    assert loss_rows(single.run_dir) != loss_rows(a.run_dir)
+    assert all(math.isfinite(r.val_mse_world_m2) for r in a.history)
+    from quad_il.inference.policy import LoadedPolicy
+
+    loaded = LoadedPolicy(a.policy_path)
+    assert loaded.meta.hypotheses == 3 and loaded.meta.network_output_dim == 3 * (30 + 1)
 
 
 def test_resume_continues_the_same_curve(dataset: Path, tmp_path: Path) -> None:

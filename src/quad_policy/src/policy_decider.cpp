@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <stdexcept>
 #include <utility>
 
@@ -15,6 +16,23 @@ const UniformBspline* Decision::to_send() const {
   if (recovery) return &*recovery;
   if (accepted()) return &proposed;
   return stop ? &*stop : nullptr;
+}
+
+std::string RecoveryText(const Decision& d, int num_hypotheses) {
+  // Hypotheses are numbered from 1 in the text (index + 1).
+  if (!d.recovery) return "";
+  const char* what = d.steered ? "steered" : "recovered";
+  char buf[160];
+  if (num_hypotheses == 1) {
+    std::snprintf(buf, sizeof(buf), "; %s with the goal turned %g deg", what, d.recovery_yaw_deg);
+  } else if (d.recovery_yaw_deg == 0.0) {
+    std::snprintf(buf, sizeof(buf), "; %s with hypothesis %d of %d", what, d.recovery_hypothesis + 1,
+                  num_hypotheses);
+  } else {
+    std::snprintf(buf, sizeof(buf), "; %s with the goal turned %g deg, hypothesis %d of %d", what,
+                  d.recovery_yaw_deg, d.recovery_hypothesis + 1, num_hypotheses);
+  }
+  return buf;
 }
 
 Eigen::Vector3d TurnedGoal(const Eigen::Vector3d& p_world_body, const Eigen::Vector3d& goal_world,
@@ -138,7 +156,9 @@ Decision PolicyDecider::Decide(const DecisionInputs& in) {
   d.timings.forward_ms = MsSince(t0);
 
   t0 = std::chrono::steady_clock::now();
-  d.proposed = PolicyTrajectory(decoder_.Decode(d.y, in.state), meta, in.stamp_s);
+  const std::vector<HypothesisPlan> plans = OrderedPlans(d.y, meta);
+  d.proposed = PolicyTrajectory(decoder_.Decode(plans.front().y, in.state), meta, in.stamp_s);
+  d.proposed_hypothesis = plans.front().index;
   d.timings.decode_ms = MsSince(t0);
 
   t0 = std::chrono::steady_clock::now();
@@ -151,30 +171,45 @@ Decision PolicyDecider::Decide(const DecisionInputs& in) {
       d.final_approach = std::move(traj);
     }
   }
-  // A refused proposal is replaced by the first turned plan that the safety layer accepts and that stays in
-  // view. Steering: an accepted proposal that comes nearer than steer_clearance_m to what the depth frame
-  // shows is replaced by the first turned plan that, besides, keeps steer_clearance_m. (The wider sphere
-  // skips the samples it holds the camera in, so it adds to the safety layer's test, never replaces it.)
+  // A refused proposal is replaced by the first other plan that the safety layer accepts and that stays in
+  // view: the policy's other hypotheses (most confident first, no extra forward pass), then for each turned
+  // goal its hypotheses. Steering: an accepted proposal that comes nearer than steer_clearance_m to what the
+  // depth frame shows is replaced by the first such plan that, besides, keeps steer_clearance_m. (The wider
+  // sphere skips the samples it holds the camera in, so it adds to the safety layer's test, never replaces
+  // it.)
   SafetyConfig steer = safety_;
   steer.vehicle_radius_m = recovery_.steer_clearance_m;
   const bool steering =
       d.accepted() && recovery_.steer_clearance_m > 0.0 &&
       !CheckTrajectory(d.proposed, in.state.p_world_body, &in.depth, in.camera, steer).accepted();
   if (!d.final_approach && (!d.accepted() || steering)) {
-    for (double yaw : recovery_.goal_yaw_offsets_deg) {
-      ++d.recovery_tries;
-      const Eigen::Vector3d goal = TurnedGoal(in.state.p_world_body, in.goal_world, yaw);
-      const std::vector<float> y = policy_->Run(d.depth_x, EncodeState(in.state, goal, meta), in.state, goal);
-      UniformBspline traj = PolicyTrajectory(decoder_.Decode(y, in.state), meta, in.stamp_s);
-      if (CheckTrajectory(traj, in.state.p_world_body, &in.depth, in.camera, safety_).accepted() &&
-          (!steering ||
-           CheckTrajectory(traj, in.state.p_world_body, &in.depth, in.camera, steer).accepted()) &&
-          TrajectoryInView(traj, in.camera, safety_)) {
-        d.recovery = std::move(traj);
-        d.recovery_yaw_deg = yaw;
-        d.steered = steering;
-        break;
+    // Yaw 0 (never a configured turn: those are non-zero) stands for the goal itself.
+    std::vector<double> yaws{0.0};
+    yaws.insert(yaws.end(), recovery_.goal_yaw_offsets_deg.begin(), recovery_.goal_yaw_offsets_deg.end());
+    for (double yaw : yaws) {
+      std::vector<HypothesisPlan> alternatives;
+      if (yaw == 0.0) {
+        alternatives.assign(plans.begin() + 1, plans.end());
+      } else {
+        ++d.recovery_tries;
+        const Eigen::Vector3d goal = TurnedGoal(in.state.p_world_body, in.goal_world, yaw);
+        alternatives =
+            OrderedPlans(policy_->Run(d.depth_x, EncodeState(in.state, goal, meta), in.state, goal), meta);
       }
+      for (const HypothesisPlan& plan : alternatives) {
+        UniformBspline traj = PolicyTrajectory(decoder_.Decode(plan.y, in.state), meta, in.stamp_s);
+        if (CheckTrajectory(traj, in.state.p_world_body, &in.depth, in.camera, safety_).accepted() &&
+            (!steering ||
+             CheckTrajectory(traj, in.state.p_world_body, &in.depth, in.camera, steer).accepted()) &&
+            TrajectoryInView(traj, in.camera, safety_)) {
+          d.recovery = std::move(traj);
+          d.recovery_yaw_deg = yaw;
+          d.recovery_hypothesis = plan.index;
+          d.steered = steering;
+          break;
+        }
+      }
+      if (d.recovery) break;
     }
   }
   if (!d.accepted() && !d.recovery && !d.final_approach && refusal_.action == RefusalAction::kStop) {

@@ -17,6 +17,10 @@ int PolicyMeta::output_dim() const {
   return 3 * (representation == OutputRepresentation::kPolynomial ? poly_degree + 1 : num_ctrl_pts);
 }
 
+int PolicyMeta::network_output_dim() const {
+  return hypotheses == 1 ? output_dim() : hypotheses * (output_dim() + 1);
+}
+
 namespace {
 
 // JSON is a subset of YAML 1.2's flow style, so yaml-cpp (already a dependency) reads the metadata.
@@ -68,6 +72,29 @@ class MetaReader {
     const YAML::Node n = parent[key];
     if (n.IsScalar() && (n.Scalar() == "true" || n.Scalar() == "false")) return n.Scalar() == "true";
     Fail(path, "must be true or false, got " + Dump(n));
+  }
+
+  // An integer key in [lo, hi] that files exported before it existed lack (then `fallback`).
+  int OptionalIntIn(const std::string& path, int lo, int hi, int fallback) const {
+    const std::size_t dot = path.rfind('.');
+    const YAML::Node parent = dot == std::string::npos ? YAML::Clone(root_) : Node(path.substr(0, dot));
+    const std::string key = dot == std::string::npos ? path : path.substr(dot + 1);
+    if (!parent.IsMap() || !parent[key]) return fallback;
+    const YAML::Node n = parent[key];
+    const std::string range = "must be an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) + "]";
+    // Only what JSON calls an integer: not booleans, fractions or strings (a quoted scalar has the tag "!").
+    if (!n.IsScalar() || n.Tag() == "!" || n.Scalar().empty() ||
+        n.Scalar().find_first_not_of("-0123456789") != std::string::npos) {
+      Fail(path, range + ", got " + Dump(n));
+    }
+    int v = 0;
+    try {
+      v = n.as<int>();
+    } catch (const YAML::Exception&) {
+      Fail(path, range + ", got " + Dump(n));
+    }
+    if (v < lo || v > hi) Fail(path, range + ", got " + std::to_string(v));
+    return v;
   }
 
   PolicyFrame Frame(const std::string& path) const {
@@ -135,6 +162,7 @@ PolicyMeta ParsePolicyMeta(const std::string& json_text, const std::string& sour
   } else {
     r.Fail("output.network_representation", "must be 'bspline' or 'polynomial', got '" + rep + "'");
   }
+  m.hypotheses = r.OptionalIntIn("output.hypotheses", 1, kMaxHypotheses, 1);
   return m;
 }
 

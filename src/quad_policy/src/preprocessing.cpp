@@ -2,8 +2,10 @@
 
 #include <Eigen/Cholesky>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
+#include <numeric>
 #include <stdexcept>
 #include <string>
 
@@ -185,6 +187,32 @@ OutputDecoder::OutputDecoder(const PolicyMeta& meta) : meta_(meta) {
   if (meta.representation == OutputRepresentation::kPolynomial) {
     poly_decode_ = PolynomialDecodeMatrix(meta.num_ctrl_pts, meta.poly_degree);
   }
+}
+
+std::vector<HypothesisPlan> OrderedPlans(const std::vector<float>& y, const PolicyMeta& meta) {
+  const int d = meta.output_dim();
+  const int m = meta.hypotheses;
+  if (static_cast<int>(y.size()) != meta.network_output_dim()) {
+    throw std::invalid_argument("network output has " + std::to_string(y.size()) +
+                                " values, the policy declares " + std::to_string(meta.network_output_dim()));
+  }
+  if (m == 1) return {HypothesisPlan{0, y}};
+  std::vector<int> order(m);
+  std::iota(order.begin(), order.end(), 0);
+  const float* logits = y.data() + static_cast<std::size_t>(m) * d;
+  // A strict weak order even with NaN: NaN logits rank after every number, then by index.
+  std::stable_sort(order.begin(), order.end(), [logits](int a, int b) {
+    const bool na = std::isnan(logits[a]), nb = std::isnan(logits[b]);
+    if (na != nb) return nb;
+    return !na && logits[a] > logits[b];
+  });
+  std::vector<HypothesisPlan> out;
+  out.reserve(m);
+  for (int i : order) {
+    const auto first = y.begin() + static_cast<std::ptrdiff_t>(i) * d;
+    out.push_back(HypothesisPlan{i, std::vector<float>(first, first + d)});
+  }
+  return out;
 }
 
 CtrlPoints OutputDecoder::Decode(const std::vector<float>& y, const VehicleState& state) const {

@@ -113,6 +113,13 @@ TorchPolicy::TorchPolicy(const std::string& path) : impl_(std::make_unique<Impl>
     check("max_depth_m", impl_->module.attr("max_depth_m").toDouble(), m.max_depth_m);
     check("num_ctrl_pts", impl_->module.attr("num_ctrl_pts").toInt(), m.num_ctrl_pts);
     check("horizon_s", impl_->module.attr("horizon_s").toDouble(), m.horizon_s);
+    // Files from before multiple hypotheses have no such attribute: one plan.
+    const int file_hypotheses =
+        impl_->module.hasattr("num_hypotheses") ? impl_->module.attr("num_hypotheses").toInt() : 1;
+    if (file_hypotheses != m.hypotheses) {
+      throw PolicyFormatError(path + ": attribute num_hypotheses = " + std::to_string(file_hypotheses) +
+                              " disagrees with the metadata's output.hypotheses " + std::to_string(m.hypotheses));
+    }
   } catch (const c10::Error& e) {
     throw PolicyFormatError(path + ": missing policy attribute: " + e.what_without_backtrace());
   }
@@ -153,9 +160,9 @@ std::vector<float> TorchPolicy::Run(const std::vector<float>& depth_x, const Sta
                                              QuatRow(state.q_world_body), Row(goal_world)})
             .toTensor();
   }
-  if (y.numel() != m.output_dim()) {
+  if (y.numel() != m.network_output_dim()) {
     throw std::runtime_error(impl_->path + ": the network returned " + std::to_string(y.numel()) +
-                             " values, the metadata declares " + std::to_string(m.output_dim()));
+                             " values, the metadata declares " + std::to_string(m.network_output_dim()));
   }
   return ToVector(y);
 }
@@ -170,6 +177,13 @@ CtrlPoints TorchPolicy::FileDecode(const std::vector<float>& y, const VehicleSta
   const at::Tensor yt = torch::tensor(y, torch::kFloat32).reshape({1, -1});
   return ToCtrl(impl_->module.get_method("decode")({yt, Row(state.p_world_body), QuatRow(state.q_world_body)})
                     .toTensor());
+}
+
+std::vector<float> TorchPolicy::FileSelect(const std::vector<float>& y) const {
+  if (!impl_->module.find_method("select").has_value()) return y;
+  c10::InferenceMode guard;
+  const at::Tensor yt = torch::tensor(y, torch::kFloat32).reshape({1, -1});
+  return ToVector(impl_->module.get_method("select")({yt}).toTensor());
 }
 
 CtrlPoints TorchPolicy::FileForward(const DepthImageView& depth, const VehicleState& state,

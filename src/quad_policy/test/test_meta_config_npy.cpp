@@ -8,8 +8,10 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <limits>
 #include <random>
 #include <string>
+#include <vector>
 
 #include "quad_policy/config.h"
 #include "quad_policy/fixture.h"
@@ -102,6 +104,61 @@ TEST(PolicyMeta, VelocityInputIsOptionalAndZeroesTheVelocityEntries) {
               ParsePolicyMeta(bad, "p.ts");
             }).find("'preprocessing.velocity_input' must be true or false, got 7"),
             std::string::npos);
+}
+
+TEST(PolicyMeta, HypothesesAreOptionalBoundedAndSetTheNetworkOutputWidth) {
+  const PolicyMeta one = ParsePolicyMeta(MetaJson(), "p.ts");  // files exported before the key
+  EXPECT_EQ(one.hypotheses, 1);
+  EXPECT_EQ(one.network_output_dim(), 30);
+  const std::string key = "\"num_ctrl_pts\": 10";
+  const auto with = [&](const std::string& value) {
+    std::string j = MetaJson();
+    j.replace(j.find(key), key.size(), key + ", \"hypotheses\": " + value);
+    return j;
+  };
+  const PolicyMeta three = ParsePolicyMeta(with("3"), "p.ts");
+  EXPECT_EQ(three.hypotheses, 3);
+  EXPECT_EQ(three.output_dim(), 30);
+  EXPECT_EQ(three.network_output_dim(), 93);
+  for (const std::string bad : {"0", "9", "2.5", "true", "\"3\""}) {
+    EXPECT_NE(ErrorOf([&] { ParsePolicyMeta(with(bad), "p.ts"); })
+                  .find("p.ts: policy metadata key 'output.hypotheses' must be an integer in [1, 8]"),
+              std::string::npos)
+        << bad;
+  }
+}
+
+TEST(OrderedPlans, MostConfidentFirstTiesByIndexNanLast) {
+  PolicyMeta m = ParsePolicyMeta(MetaJson(), "p.ts");
+  m.hypotheses = 3;
+  std::vector<float> y(93);
+  for (int i = 0; i < 90; ++i) y[i] = static_cast<float>(i);
+  const auto order = [&](float a, float b, float c) {
+    y[90] = a;
+    y[91] = b;
+    y[92] = c;
+    std::vector<int> idx;
+    for (const HypothesisPlan& p : OrderedPlans(y, m)) {
+      EXPECT_EQ(p.y.size(), 30u);
+      EXPECT_EQ(p.y.front(), 30.0f * p.index);
+      idx.push_back(p.index);
+    }
+    return idx;
+  };
+  EXPECT_EQ(order(0.1f, 2.0f, -1.0f), (std::vector<int>{1, 0, 2}));
+  EXPECT_EQ(order(1.0f, 1.0f, 1.0f), (std::vector<int>{0, 1, 2}));
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  EXPECT_EQ(order(nan, 0.0f, 3.0f), (std::vector<int>{2, 1, 0}));
+  EXPECT_EQ(order(nan, nan, 0.0f), (std::vector<int>{2, 0, 1}));
+  y.pop_back();
+  EXPECT_NE(ErrorOf([&] { OrderedPlans(y, m); }).find("network output has 92 values, the policy declares 93"),
+            std::string::npos);
+  m.hypotheses = 1;
+  const std::vector<float> single(30, 1.5f);
+  const std::vector<HypothesisPlan> plans = OrderedPlans(single, m);
+  ASSERT_EQ(plans.size(), 1u);
+  EXPECT_EQ(plans[0].index, 0);
+  EXPECT_EQ(plans[0].y, single);
 }
 
 TEST(PolicyNodeConfig, TheRepositoryConfigLoads) {

@@ -16,8 +16,10 @@
 // the recovery's replacing an accepted plan (steering), 5 the final approach (recovery.final_approach_m; its
 // 4 control points in final_ctrl.npy and knot interval in final_knot_dt.npy, zeros: none). Turning in place
 // (recovery.turn_after_stops) writes turn_rate_radps.npy (0: not turning) and stop_yaw.npy (the stopping
-// trajectory's 4 yaw control points; zeros: none). The frames are decided in order by one decider, as a node
-// decides an episode.
+// trajectory's 4 yaw control points; zeros: none). With several hypotheses (model.hypotheses), y.npy holds
+// the whole network output, proposed_hypothesis.npy the index of the plan proposed and recovery_hypothesis.npy
+// that of the recovery's plan (-1: not recovered); file_decode.npy decodes the file's own `select`. The frames
+// are decided in order by one decider, as a node decides an episode.
 //
 // Exit status: 0 done, 1 bad input (message on stderr), 2 usage.
 #include <filesystem>
@@ -74,7 +76,7 @@ int main(int argc, char** argv) {
     std::vector<float> depth_x, file_depth_x, state_x, y;
     std::vector<double> ctrl, file_decode, file_forward, safety_value, stop_ctrl, stop_dt, knots;
     std::vector<double> recovery_yaw, recovery_ctrl, turn_rate, stop_yaw, final_ctrl, final_dt;
-    std::vector<int32_t> verdict, sent_kind, recovery_tries;
+    std::vector<int32_t> verdict, sent_kind, recovery_tries, proposed_hypothesis, recovery_hypothesis;
     for (std::size_t i = 0; i < n; ++i) {
       const RecordedFrame& f = fx.frames[i];
       DecisionInputs in;
@@ -90,7 +92,9 @@ int main(int argc, char** argv) {
       state_x.insert(state_x.end(), d.state_x.begin(), d.state_x.end());
       y.insert(y.end(), d.y.begin(), d.y.end());
       AppendCtrl(d.proposed.ctrl_world, &ctrl);
-      AppendCtrl(policy->FileDecode(d.y, f.state), &file_decode);
+      AppendCtrl(policy->FileDecode(policy->FileSelect(d.y), f.state), &file_decode);
+      proposed_hypothesis.push_back(d.proposed_hypothesis);
+      recovery_hypothesis.push_back(d.recovery_hypothesis);
       AppendCtrl(policy->FileForward(in.depth, f.state, f.goal_world), &file_forward);
       verdict.push_back(static_cast<int32_t>(d.safety.verdict));
       safety_value.push_back(d.safety.value);
@@ -138,7 +142,9 @@ int main(int argc, char** argv) {
     WriteNpy(out + "/depth_x.npy", NpyArray::FromFloat(depth_x, {n, h, w}));
     WriteNpy(out + "/file_depth_x.npy", NpyArray::FromFloat(file_depth_x, {n, h, w}));
     WriteNpy(out + "/state_x.npy", NpyArray::FromFloat(state_x, {n, static_cast<std::size_t>(kStateDim)}));
-    WriteNpy(out + "/y.npy", NpyArray::FromFloat(y, {n, static_cast<std::size_t>(m.output_dim())}));
+    WriteNpy(out + "/y.npy", NpyArray::FromFloat(y, {n, static_cast<std::size_t>(m.network_output_dim())}));
+    WriteNpy(out + "/proposed_hypothesis.npy", NpyArray::FromInt32(proposed_hypothesis, {n}));
+    WriteNpy(out + "/recovery_hypothesis.npy", NpyArray::FromInt32(recovery_hypothesis, {n}));
     WriteNpy(out + "/ctrl_world.npy", NpyArray::FromDouble(ctrl, {n, k, 3}));
     WriteNpy(out + "/file_decode.npy", NpyArray::FromDouble(file_decode, {n, k, 3}));
     WriteNpy(out + "/file_forward.npy", NpyArray::FromDouble(file_forward, {n, k, 3}));

@@ -91,12 +91,15 @@ struct DecisionTimings {
 
 struct Decision {
   SafetyResult safety;
-  UniformBspline proposed;             // the policy's trajectory (world frame)
+  UniformBspline proposed;             // the policy's trajectory (world frame; the most confident hypothesis)
+  int proposed_hypothesis = 0;         // index of the hypothesis `proposed` comes from
   std::optional<UniformBspline> stop;  // the stopping trajectory when refused, not recovered, action kStop
-  // When the policy's plan was refused (or, steering, came nearer than steer_clearance_m) and a turned goal
-  // gave a plan that passed: that plan and the angle.
+  // When the policy's plan was refused (or, steering, came nearer than steer_clearance_m) and another
+  // hypothesis or a turned goal gave a plan that passed: that plan, the angle (0: the goal itself) and the
+  // hypothesis' index.
   std::optional<UniformBspline> recovery;
   double recovery_yaw_deg = 0.0;
+  int recovery_hypothesis = -1;
   int recovery_tries = 0;        // turned goals asked (0 when no search ran)
   bool steered = false;          // the recovery replaces an accepted plan (steering), not a refused one
   double turn_rate_radps = 0.0;  // non-zero: the stopping trajectory turns in place at this rate
@@ -106,13 +109,17 @@ struct Decision {
   std::optional<UniformBspline> final_approach;
   std::vector<float> depth_x;  // network depth input (input_height x input_width)
   StateVector state_x{};       // state vector (EncodeState)
-  std::vector<float> y;        // network output (training representation)
+  std::vector<float> y;        // network output (training representation), every hypothesis
   DecisionTimings timings;
   bool accepted() const { return safety.accepted(); }
   // The trajectory to send to the tracker: the final approach if there is one, else the recovery's plan if
   // there is one, else the proposal if accepted, else the stopping trajectory (or none).
   const UniformBspline* to_send() const;
 };
+
+// "; recovered with ..." for the decision's reason ("" without a recovery); the Python node writes the same
+// words (Decision.recovery_text).
+std::string RecoveryText(const Decision& d, int num_hypotheses);
 
 class PolicyDecider {
  public:

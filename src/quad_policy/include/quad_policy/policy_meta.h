@@ -15,6 +15,8 @@ inline constexpr const char* kPolicyMetaFormat = "quad_il_policy/1";
 inline constexpr int kPolicyBsplineOrder = 3;
 // (position 3, velocity 3, quaternion xyzw 4, goal 3): learning/preprocessing.py STATE_DIM.
 inline constexpr int kStateDim = 13;
+// model.hypotheses' bound (learning/config.py).
+inline constexpr int kMaxHypotheses = 8;
 
 // An exported policy file is unusable; what() names the file and the key or problem.
 class PolicyFormatError : public std::runtime_error {
@@ -42,11 +44,14 @@ struct PolicyMeta {
   PolicyFrame output_frame = PolicyFrame::kWorld;
   OutputRepresentation representation = OutputRepresentation::kBspline;
   int poly_degree = 0;  // used with kPolynomial only
+  int hypotheses = 1;   // plans per forward pass (output.hypotheses; files without the key: 1)
 
   // Knot interval of the uniform cubic B-spline: horizon_s / (K - 3).
   double knot_dt_s() const { return horizon_s / (num_ctrl_pts - kPolicyBsplineOrder); }
-  // Length of the network's flat output: 3 K (bspline) or 3 (degree + 1) (polynomial).
+  // Length of one plan: 3 K (bspline) or 3 (degree + 1) (polynomial); what OutputDecoder::Decode takes.
   int output_dim() const;
+  // Length of the network's flat output: one plan, or M plans followed by their M confidence logits.
+  int network_output_dim() const;
 };
 
 // Parses and validates the metadata (JSON). Throws PolicyFormatError naming `source` and the missing or bad

@@ -81,6 +81,17 @@ class OutputDecoder {
   Eigen::MatrixXd poly_decode_;  // K x (degree + 1), empty for the B-spline representation
 };
 
+// One plan of the network's output: the hypothesis' index and its output_dim values.
+struct HypothesisPlan {
+  int index = 0;
+  std::vector<float> y;
+};
+
+// The network's flat output (network_output_dim values) -> its plans, most confident first: the largest
+// logit, equal logits in index order (as the file's `select`), NaN logits last; one plan: {0, y}. The Python
+// `ordered_plans` makes the same order. Throws std::invalid_argument when y has the wrong length.
+std::vector<HypothesisPlan> OrderedPlans(const std::vector<float>& y, const PolicyMeta& meta);
+
 // The matrices of learning/preprocessing.py: uniform_cubic_basis (S x K) and the decode map pinv(A) T.
 Eigen::MatrixXd UniformCubicBasis(int num_ctrl_pts, int num_samples);
 Eigen::MatrixXd PolynomialDecodeMatrix(int num_ctrl_pts, int degree);

@@ -50,6 +50,8 @@ class TorchPolicy {
   // The file's own preprocessing, decoding and end-to-end forward: references for the parity tests.
   std::vector<float> FilePreprocessDepth(const DepthImageView& depth) const;
   CtrlPoints FileDecode(const std::vector<float>& y, const VehicleState& state) const;
+  // The file's choice of the plan flown (its `select`: output_dim values); files without it: y itself.
+  std::vector<float> FileSelect(const std::vector<float>& y) const;
   CtrlPoints FileForward(const DepthImageView& depth, const VehicleState& state,
                          const Eigen::Vector3d& goal_world) const;
 

@@ -367,10 +367,7 @@ class PolicyNode {
     }
     if (d.recovery) {
       Count(d.steered ? "steered" : "recovered");
-      char turn[96];
-      std::snprintf(turn, sizeof(turn), "; %s with the goal turned %g deg",
-                    d.steered ? "steered" : "recovered", d.recovery_yaw_deg);
-      out->reason += turn;
+      out->reason += quad_policy::RecoveryText(d, decider_->policy().meta().hypotheses);
     }
     if (d.final_approach) {
       Count("final_approach");

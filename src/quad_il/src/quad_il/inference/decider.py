@@ -1,9 +1,10 @@
 """One decision of the learned policy (the Python twin of quad_policy/policy_decider.h).
 
 depth frame + odometry + goal -> preprocessing -> network -> world-frame B-spline started at the frame's stamp
--> safety layer -> the trajectory to send: the policy's; when refused, the first accepted plan of the recovery
-(the network asked again with the goal turned about the vehicle, `recovery.goal_yaw_offsets_deg`); else the
-stopping trajectory when the refusal action is `stop`. ROS-free: the rospy node, the parity test and the
+-> safety layer -> the trajectory to send: the policy's (with several hypotheses, the most confident one's);
+when refused, the first accepted plan of the recovery (the policy's other hypotheses in order of confidence,
+then the network asked again with the goal turned about the vehicle, `recovery.goal_yaw_offsets_deg`); else
+the stopping trajectory when the refusal action is `stop`. ROS-free: the rospy node, the parity test and the
 benchmark call `decide`."""
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from quad_il.inference.config import (
 )
 from quad_il.inference.fixture import DecisionFixture
 from quad_il.inference.geometry import yaw_of
-from quad_il.inference.policy import LoadedPolicy
+from quad_il.inference.policy import LoadedPolicy, ordered_plans
 from quad_il.inference.preprocessing import PolicyPreprocessing, as_row
 from quad_il.inference.safety import (
     CameraModel,
@@ -84,12 +85,15 @@ class Decision:
     stop: UniformBspline | None
     depth_x: NDArray[np.float32]  # (input_height, input_width)
     state_x: NDArray[np.float32]  # (13,)
-    y: NDArray[np.float32]  # (output_dim,)
+    y: NDArray[np.float32]  # (network_output_dim,): the network's output, every hypothesis
+    proposed_hypothesis: int = 0  # index of the hypothesis `proposed` comes from (the most confident)
     timings: DecisionTimings = field(default_factory=DecisionTimings)
-    # When the policy's plan was refused (or, steering, came nearer than steer_clearance_m) and a turned goal
-    # gave a plan that passed: that plan and the angle.
+    # When the policy's plan was refused (or, steering, came nearer than steer_clearance_m) and another
+    # hypothesis or a turned goal gave a plan that passed: that plan, the angle (0: the goal itself) and the
+    # hypothesis' index.
     recovery: UniformBspline | None = None
     recovery_yaw_deg: float | None = None
+    recovery_hypothesis: int | None = None
     recovery_tries: int = 0  # turned goals asked (0 when no search ran)
     steered: bool = False  # the recovery replaces an accepted plan (steering), not a refused one
     turn_rate_radps: float = 0.0  # non-zero: the stopping trajectory turns in place at this rate
@@ -101,6 +105,20 @@ class Decision:
     @property
     def accepted(self) -> bool:
         return self.safety.accepted
+
+    def recovery_text(self, num_hypotheses: int) -> str:
+        """ "; recovered with ..." for the decision's reason ("" without a recovery); the C++ node writes the
+        same words (RecoveryText)."""
+        if self.recovery is None:
+            return ""
+        what = "steered" if self.steered else "recovered"
+        yaw = self.recovery_yaw_deg or 0.0
+        if num_hypotheses == 1:
+            return f"; {what} with the goal turned {yaw:g} deg"
+        hyp = f"hypothesis {(self.recovery_hypothesis or 0) + 1} of {num_hypotheses}"  # numbered from 1
+        if yaw == 0.0:
+            return f"; {what} with {hyp}"
+        return f"; {what} with the goal turned {yaw:g} deg, {hyp}"
 
     def to_send(self) -> UniformBspline | None:
         if self.final is not None:
@@ -170,7 +188,9 @@ class PolicyDecider:
         t1 = time.perf_counter()
         y = self.policy.run(depth_x, state_x, p, v, q, goal)
         t2 = time.perf_counter()
-        proposed = policy_trajectory(self.pre.decode(y, p, q), self.policy.meta, inp.stamp_s)
+        meta = self.policy.meta
+        plans = ordered_plans(y, meta)
+        proposed = policy_trajectory(self.pre.decode(plans[0][1], p, q), meta, inp.stamp_s)
         t3 = time.perf_counter()
         result = check_trajectory(proposed, inp.p_world_body, inp.depth_m, inp.camera, self.safety)
         final = None
@@ -193,11 +213,14 @@ class PolicyDecider:
                 final = traj
         recovery: UniformBspline | None = None
         recovery_yaw: float | None = None
+        recovery_h: int | None = None
         tries = 0
-        # A refused proposal is replaced by the first turned plan that the safety layer accepts and that
-        # stays in view. Steering: an accepted proposal that comes nearer than steer_clearance_m is replaced
-        # by the first turned plan that, besides, keeps steer_clearance_m (the wider sphere skips the samples
-        # it holds the camera in, so it adds to the safety layer's test, never replaces it).
+        # A refused proposal is replaced by the first other plan that the safety layer accepts and that stays
+        # in view: the policy's other hypotheses (most confident first, no extra forward pass), then for each
+        # turned goal its hypotheses. Steering: an accepted proposal that comes nearer than
+        # steer_clearance_m is replaced by the first such plan that, besides, keeps steer_clearance_m (the
+        # wider sphere skips the samples it holds the camera in, so it adds to the safety layer's test, never
+        # replaces it).
         steering = (
             result.accepted
             and self.recovery.steer_clearance_m > 0.0
@@ -206,22 +229,33 @@ class PolicyDecider:
             ).accepted
         )
         if final is None and (not result.accepted or steering):
-            for yaw in self.recovery.goal_yaw_offsets_deg:
-                tries += 1
-                g = as_row(turned_goal(inp.p_world_body, inp.goal_world, yaw), 3, "goal_world")
-                y_r = self.policy.run(depth_x, self.pre.state(p, v, q, g), p, v, q, g)
-                traj = policy_trajectory(self.pre.decode(y_r, p, q), self.policy.meta, inp.stamp_s)
-                if (
-                    check_trajectory(traj, inp.p_world_body, inp.depth_m, inp.camera, self.safety).accepted
-                    and (
-                        not steering
-                        or check_trajectory(
-                            traj, inp.p_world_body, inp.depth_m, inp.camera, self.steer_safety
-                        ).accepted
+            # Yaw 0 (never a configured turn: those are non-zero) stands for the goal itself.
+            for yaw in [0.0, *self.recovery.goal_yaw_offsets_deg]:
+                if yaw == 0.0:
+                    alternatives = plans[1:]
+                else:
+                    tries += 1
+                    g = as_row(turned_goal(inp.p_world_body, inp.goal_world, yaw), 3, "goal_world")
+                    alternatives = ordered_plans(
+                        self.policy.run(depth_x, self.pre.state(p, v, q, g), p, v, q, g), meta
                     )
-                    and trajectory_in_view(traj, inp.camera, self.safety)
-                ):
-                    recovery, recovery_yaw = traj, yaw
+                for h, y_h in alternatives:
+                    traj = policy_trajectory(self.pre.decode(y_h, p, q), meta, inp.stamp_s)
+                    if (
+                        check_trajectory(
+                            traj, inp.p_world_body, inp.depth_m, inp.camera, self.safety
+                        ).accepted
+                        and (
+                            not steering
+                            or check_trajectory(
+                                traj, inp.p_world_body, inp.depth_m, inp.camera, self.steer_safety
+                            ).accepted
+                        )
+                        and trajectory_in_view(traj, inp.camera, self.safety)
+                    ):
+                        recovery, recovery_yaw, recovery_h = traj, yaw, h
+                        break
+                if recovery is not None:
                     break
         stop = None
         turn_rate = 0.0
@@ -271,9 +305,11 @@ class PolicyDecider:
             depth_x=depth_x[0, 0].numpy().copy(),
             state_x=state_x[0].numpy().copy(),
             y=y[0].numpy().copy(),
+            proposed_hypothesis=plans[0][0],
             timings=DecisionTimings(1e3 * (t1 - t0), 1e3 * (t2 - t1), 1e3 * (t3 - t2), 1e3 * (t4 - t3)),
             recovery=recovery,
             recovery_yaw_deg=recovery_yaw,
+            recovery_hypothesis=recovery_h,
             recovery_tries=tries,
             steered=steering and recovery is not None,
             turn_rate_radps=turn_rate,

@@ -11,6 +11,7 @@ from typing import Any, Literal
 
 META_FORMAT = "quad_il_policy/1"
 BSPLINE_ORDER = 3
+MAX_HYPOTHESES = 8  # model.hypotheses' bound (learning/config.py)
 
 
 class PolicyFormatError(ValueError):
@@ -34,6 +35,7 @@ class PolicyMeta:
     representation: Literal["bspline", "polynomial"]
     poly_degree: int  # 0 for the B-spline representation
     velocity_input: bool = True  # false: the state's velocity entries are zero (model.velocity_input)
+    hypotheses: int = 1  # plans per forward pass (model.hypotheses); files without output.hypotheses: 1
 
     @property
     def knot_dt_s(self) -> float:
@@ -41,7 +43,13 @@ class PolicyMeta:
 
     @property
     def output_dim(self) -> int:
+        """Values of one plan (what `decode` takes)."""
         return 3 * (self.poly_degree + 1 if self.representation == "polynomial" else self.num_ctrl_pts)
+
+    @property
+    def network_output_dim(self) -> int:
+        """Values the network returns: one plan, or M plans and M confidence logits."""
+        return self.output_dim if self.hypotheses == 1 else self.hypotheses * (self.output_dim + 1)
 
 
 def _get(meta: dict[str, Any], path: str, source: str) -> Any:
@@ -73,6 +81,20 @@ def _int_at_least(meta: dict[str, Any], path: str, lo: int, source: str) -> int:
         raise PolicyFormatError(f"{source}: policy metadata key '{path}' has an unexpected value {v!r}")
     if v < lo:
         raise PolicyFormatError(f"{source}: policy metadata key '{path}' must be >= {lo}, got {v}")
+    return v
+
+
+def _optional_int_in(meta: dict[str, Any], path: str, lo: int, hi: int, default: int, source: str) -> int:
+    """An integer key in [lo, hi] that files exported before it existed lack (then `default`)."""
+    parent, _, key = path.rpartition(".")
+    node = _get(meta, parent, source) if parent else meta
+    if not isinstance(node, dict) or key not in node:
+        return default
+    v = node[key]
+    if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+        raise PolicyFormatError(
+            f"{source}: policy metadata key '{path}' must be an integer in [{lo}, {hi}], got {v!r}"
+        )
     return v
 
 
@@ -124,4 +146,5 @@ def parse_policy_meta(meta: dict[str, Any], source: str) -> PolicyMeta:
         representation=rep,
         poly_degree=_int_at_least(meta, "model.poly_degree", 1, source) if rep == "polynomial" else 0,
         velocity_input=_optional_bool(meta, "preprocessing.velocity_input", True, source),
+        hypotheses=_optional_int_in(meta, "output.hypotheses", 1, MAX_HYPOTHESES, 1, source),
     )

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -51,6 +52,13 @@ class LoadedPolicy:
                 raise PolicyFormatError(
                     f"{self.path}: attribute {attr} = {file_value!r} disagrees with the metadata's {value!r}"
                 )
+        # Files from before multiple hypotheses have no such attribute: one plan.
+        file_hypotheses = getattr(self.module, "num_hypotheses", 1)
+        if file_hypotheses != m.hypotheses:
+            raise PolicyFormatError(
+                f"{self.path}: attribute num_hypotheses = {file_hypotheses!r} disagrees with the metadata's "
+                f"output.hypotheses {m.hypotheses!r}"
+            )
         self.has_forward_net = hasattr(self.module, "forward_net")
         if not self.has_forward_net and not hasattr(self.module, "forward_prepared"):
             raise PolicyFormatError(f"{self.path}: the file has neither forward_net nor forward_prepared")
@@ -64,20 +72,29 @@ class LoadedPolicy:
         q: torch.Tensor,
         goal: torch.Tensor,
     ) -> torch.Tensor:
-        """(1, 1, h, w) and (1, 13) [+ raw (1, 3), (1, 3), (1, 4), (1, 3)] -> (1, output_dim) float32."""
+        """(1, 1, h, w) and (1, 13) [+ raw (1, 3), (1, 3), (1, 4), (1, 3)] -> (1, network_output_dim)
+        float32: one plan, or M plans and M confidence logits (`ordered_plans`)."""
         with torch.inference_mode():
             if self.has_forward_net:
                 y = self.module.forward_net(depth_x, state_x)
             else:
                 y = self.module.forward_prepared(depth_x, p, v, q, goal)
-        if y.numel() != self.meta.output_dim:
+        if y.numel() != self.meta.network_output_dim:
             raise RuntimeError(
                 f"{self.path}: the network returned {y.numel()} values, the metadata declares "
-                f"{self.meta.output_dim}"
+                f"{self.meta.network_output_dim}"
             )
         return y.reshape(1, -1)
 
-    # The file's own preprocessing, decoding and end-to-end forward (references for the parity tests).
+    # The file's own preprocessing, decoding, selection and end-to-end forward (references for the parity
+    # tests).
+    def file_select(self, y: torch.Tensor) -> torch.Tensor:
+        """The file's choice of the plan flown, (1, output_dim); files from before hypotheses: y itself."""
+        if not hasattr(self.module, "select"):
+            return y
+        with torch.inference_mode():
+            return self.module.select(y)
+
     def file_preprocess_depth(self, depth_m: NDArray[np.float32]) -> NDArray[np.float32]:
         with torch.inference_mode():
             x = self.module.preprocess_depth(
@@ -100,3 +117,20 @@ class LoadedPolicy:
         with torch.inference_mode():
             d = torch.from_numpy(np.ascontiguousarray(depth_m, np.float32))[None]
             return self.module(d, p, v, q, goal)[0].numpy().astype(np.float64)
+
+
+def ordered_plans(y: torch.Tensor, meta: PolicyMeta) -> list[tuple[int, torch.Tensor]]:
+    """The network's output (1, network_output_dim) -> [(hypothesis index, plan (1, output_dim)), ...], most
+    confident first (largest logit; equal logits in index order, as the file's `select`; NaN logits last).
+    One plan: [(0, y)]. The C++ OrderedPlans makes the same order."""
+    d, m = meta.output_dim, meta.hypotheses
+    flat = y.reshape(-1)
+    if flat.numel() != meta.network_output_dim:
+        raise RuntimeError(
+            f"network output has {flat.numel()} values, the policy declares {meta.network_output_dim}"
+        )
+    if m == 1:
+        return [(0, flat.reshape(1, -1))]
+    logits = [float(v) for v in flat[m * d :]]
+    order = sorted(range(m), key=lambda i: (math.inf if math.isnan(logits[i]) else -logits[i], i))
+    return [(i, flat[i * d : (i + 1) * d].reshape(1, -1)) for i in order]

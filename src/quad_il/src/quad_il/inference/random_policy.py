@@ -1,5 +1,6 @@
-"""A policy exported from a randomly initialised model, for the inference benchmark and tests; and a
-goal-seeking test double with the same file interface (`export_goal_line_policy`).
+"""A policy exported from a randomly initialised model, for the inference benchmark and tests; and
+goal-seeking test doubles with the same file interface (`export_goal_line_policy`, and
+`export_goal_fan_policy` with several hypotheses).
 
 Decision latency does not depend on the weights, so `make bench-inference` times a seeded random policy of the
 default model configuration (config/train.yaml) rather than a trained one (docs/inference.md says so).
@@ -11,6 +12,7 @@ default model configuration (config/train.yaml) rather than a trained one (docs/
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -99,6 +101,63 @@ def export_goal_line_policy(
     policy = GoalLinePolicy(model_cfg, num_ctrl_pts, horizon_s, speed_mps).eval()
     check = seeded_check_inputs(model_cfg, 1, goal_offset_m=11.0)  # goals never at the vehicle
     run = {"name": "goal_line_test_double", "speed_mps": speed_mps, "trained": False}
+    return export_policy_file(policy, model_cfg, path, run, check)
+
+
+class GoalFanPolicy(GoalLinePolicy):
+    """Test double with several hypotheses (model.hypotheses = len(yaws_deg)): straight lines at `speed_mps`
+    towards the goal turned about the vehicle by each of `yaws_deg` (+ = left), with fixed confidence logits,
+    so tests can build scenes where the most confident plan is refused and another hypothesis is accepted in
+    C++ and Python alike."""
+
+    def __init__(
+        self,
+        model_cfg: ModelConfig,
+        num_ctrl_pts: int,
+        horizon_s: float,
+        speed_mps: float,
+        yaws_deg: list[float],
+        logits: list[float],
+    ) -> None:
+        if len(yaws_deg) != model_cfg.hypotheses or len(logits) != model_cfg.hypotheses:
+            raise ValueError(
+                f"GoalFanPolicy: {model_cfg.hypotheses} hypotheses need as many yaws and logits, got "
+                f"{len(yaws_deg)} and {len(logits)}"
+            )
+        super().__init__(model_cfg, num_ctrl_pts, horizon_s, speed_mps)
+        self.cos_yaw = [math.cos(math.radians(a)) for a in yaws_deg]
+        self.sin_yaw = [math.sin(math.radians(a)) for a in yaws_deg]
+        self.register_buffer("fan_logits", torch.tensor(logits, dtype=torch.float32))
+
+    @torch.jit.export
+    def forward_prepared(
+        self, depth_x: Tensor, p_world_body: Tensor, v_world: Tensor, q_world_body: Tensor, goal_world: Tensor
+    ) -> Tensor:
+        d = goal_world - p_world_body
+        parts: list[Tensor] = []
+        for i in range(len(self.cos_yaw)):
+            c, s = self.cos_yaw[i], self.sin_yaw[i]
+            turned = torch.stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1], d[:, 2]], dim=1)
+            line = self.goal_line(p_world_body, p_world_body + turned)
+            parts.append(self.codec.encode(line, p_world_body, q_world_body))
+        parts.append(self.fan_logits.unsqueeze(0).expand(p_world_body.size(0), -1))
+        return torch.cat(parts, dim=1)
+
+
+def export_goal_fan_policy(
+    path: str | Path,
+    yaws_deg: list[float],
+    logits: list[float],
+    num_ctrl_pts: int = 10,
+    horizon_s: float = 2.0,
+    speed_mps: float = 1.5,
+) -> Path:
+    """GoalFanPolicy (world-frame B-spline output, 32 x 32 input) exported as training does."""
+    model_cfg = ModelConfig(input_height=32, input_width=32, hypotheses=len(yaws_deg))
+    torch.manual_seed(0)
+    policy = GoalFanPolicy(model_cfg, num_ctrl_pts, horizon_s, speed_mps, yaws_deg, logits).eval()
+    check = seeded_check_inputs(model_cfg, 1, goal_offset_m=11.0)  # goals never at the vehicle
+    run = {"name": "goal_fan_test_double", "yaws_deg": yaws_deg, "logits": logits, "trained": False}
     return export_policy_file(policy, model_cfg, path, run, check)
 
 

@@ -317,9 +317,8 @@ class PolicyNode:
         if not d.accepted:
             rospy.logwarn_throttle(2.0, f"policy_node (py): plan refused: {d.safety.reason}")
         if d.recovery is not None:
-            what = "steered" if d.steered else "recovered"
-            self._count(what)
-            out.reason += f"; {what} with the goal turned {d.recovery_yaw_deg:g} deg"
+            self._count("steered" if d.steered else "recovered")
+            out.reason += d.recovery_text(self.decider.policy.meta.hypotheses)
         if d.final is not None:
             self._count("final_approach")
             out.reason += "; final approach: straight to the goal (not the network's plan)"

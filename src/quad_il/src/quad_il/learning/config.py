@@ -73,6 +73,9 @@ class ModelConfig(_Strict):
     # preprocessed depth (max-pooled nearness 1 - depth / max_depth_m), beside the backbone's features.
     # [] = off (the thesis's network). docs/learning.md, "Depth grid".
     depth_grid: list[int] = Field(default_factory=list)
+    # Plans per decision (multiple-hypothesis output, docs/learning.md "Multiple hypotheses"): M > 1 makes the
+    # head output M plans and M confidence logits, trained winner-takes-all; 1 = the thesis's single plan.
+    hypotheses: int = Field(1, ge=1, le=8)
 
     @model_validator(mode="after")
     def _widths_positive(self) -> ModelConfig:
@@ -122,6 +125,11 @@ class OptimConfig(_Strict):
     eil: EILTrainConfig = EILTrainConfig()
     grad_clip_norm: float | None = Field(None, gt=0.0)
     channels_last: bool = True
+    # model.hypotheses > 1 (relaxed winner-takes-all, Rupprecht et al. 2017): the share of a sample's loss
+    # spread evenly over the hypotheses that did not win, and the weight of the confidence logits' cross-
+    # entropy against the winner's index.
+    wta_relax: float = Field(0.05, ge=0.0, lt=1.0)
+    wta_confidence_weight: float = Field(0.05, ge=0.0)
 
 
 class CustomSchedulerConfig(_Strict):
@@ -175,6 +183,11 @@ class TrainConfig(_Strict):
             raise ValueError(
                 "optim.loss: eil measures distances between control points: it needs model.output = bspline, "
                 f"got {self.model.output}"
+            )
+        if self.optim.loss == "eil" and self.model.hypotheses > 1:
+            raise ValueError(
+                "optim.loss: eil scores one plan per row; it cannot train model.hypotheses = "
+                f"{self.model.hypotheses} (use mse or sse)"
             )
         return self
 

@@ -8,9 +8,12 @@ The file is `torch.jit.freeze(torch.jit.script(inference_module(policy)))` saved
             goal_world (B,3)) -> control points (B, K, 3) in the world frame, float32
     preprocess_depth(depth_m) -> (B,1,h,w)  (exactly the training preprocessing)
     forward_prepared(depth_x, p, v, q, goal) -> flat output in the training representation
-    encode_target(ctrl_world, p, q), decode(y, p, q)
+    encode_target(ctrl_world, p, q), decode(y, p, q)   (y: one plan, D values)
+    select(y) -> the flown plan (D values); split_hypotheses(y) -> plans (B, M, D), logits (B, M)
 
-and attributes input_height, input_width, max_depth_m, num_ctrl_pts, horizon_s. Any depth image size is
+and attributes input_height, input_width, max_depth_m, num_ctrl_pts, horizon_s, num_hypotheses, plan_dim.
+With model.hypotheses = M > 1 the flat output holds M plans and M confidence logits (model.py); the metadata's
+`output.hypotheses` says M (files without the key have one plan). Any depth image size is
 accepted (the file resizes); the control points span `horizon_s` seconds from the depth frame's stamp.
 
 `inference_module` is an eval-mode copy of the policy, made faster for CPU inference without changing what
@@ -45,6 +48,10 @@ PRESERVED = [
     "forward_prepared",
     "encode_target",
     "decode",
+    "select",
+    "split_hypotheses",
+    "num_hypotheses",
+    "plan_dim",
     "input_height",
     "input_width",
     "max_depth_m",
@@ -89,6 +96,12 @@ def policy_metadata(
             "network_frame": "local" if codec.local_frame else "world",
             "network_representation": "polynomial" if codec.polynomial else "bspline",
             "network_prior": str(model_cfg.get("output_prior", "none")),
+            "hypotheses": policy.num_hypotheses,
+            "hypotheses_layout": (
+                "one plan of D values"
+                if policy.num_hypotheses == 1
+                else "M plans of D values each, then M confidence logits; the largest logit is flown"
+            ),
         },
         "preprocessing": {
             "depth": (

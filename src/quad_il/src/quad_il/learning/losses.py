@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import Literal
 
+import torch
 from torch import Tensor
 
 LossName = Literal["mse", "sse", "eil"]
@@ -62,3 +63,41 @@ def eil_per_sample(
         )
     good, bad, intervention = eil_row_terms(pred, target, partition, threshold_b_m)
     return good + bad + intervention_weight * intervention
+
+
+def wta_per_sample(
+    name: LossName,
+    plans: Tensor,
+    logits: Tensor,
+    target: Tensor,
+    relax: float,
+    confidence_weight: float,
+) -> tuple[Tensor, Tensor]:
+    """Relaxed winner-takes-all over M hypotheses (Rupprecht et al., "Learning in an Uncertain World:
+    Representing Ambiguity Through Multiple Hypotheses", ICCV 2017) with a confidence classifier.
+
+    plans (B, M, D), logits (B, M), target (B, D). Per sample, with e_m the loss `name` (eq. 3.1 or 3.2) of
+    hypothesis m and w = argmin_m e_m the winner:
+        (1 - relax) e_w + relax / (M - 1) sum_{m != w} e_m + confidence_weight * CE(logits, w)
+    The winner takes the regression (so the hypotheses spread over the modes of the expert's choices instead
+    of averaging them); `relax` keeps the others from never learning; the cross-entropy teaches the logits
+    which hypothesis the expert's plan is nearest to. Returns (per-sample loss (B,), winner index (B,)).
+    """
+    if plans.dim() != 3 or logits.shape != plans.shape[:2] or target.shape != (plans.size(0), plans.size(2)):
+        raise ValueError(
+            f"expected plans (B, M, D), logits (B, M), target (B, D); got {tuple(plans.shape)}, "
+            f"{tuple(logits.shape)}, {tuple(target.shape)}"
+        )
+    m = plans.size(1)
+    if m < 2:
+        raise ValueError(f"winner-takes-all needs at least 2 hypotheses, got {m}")
+    if not 0.0 <= relax < 1.0:
+        raise ValueError(f"relax must be in [0, 1), got {relax}")
+    b, _, d = plans.shape
+    per_hyp = per_sample_loss(name, plans.reshape(b * m, d), target.repeat_interleave(m, dim=0)).reshape(b, m)
+    winner = torch.argmin(per_hyp.detach(), dim=1)
+    one_hot = torch.nn.functional.one_hot(winner, m).to(per_hyp.dtype)
+    weights = (1.0 - relax) * one_hot + relax / (m - 1) * (1.0 - one_hot)
+    regression = (weights * per_hyp).sum(dim=1)
+    confidence = torch.nn.functional.cross_entropy(logits, winner, reduction="none")
+    return regression + confidence_weight * confidence, winner

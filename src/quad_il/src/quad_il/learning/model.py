@@ -9,6 +9,11 @@
     optionally (model.depth_grid = [r, c]): depth -> max-pooled nearness on an r x c grid -> flattened, a
     third input of the planning MLP (the nearest surface in each cell, not to be learnt from pixels)
 
+    optionally (model.hypotheses = M > 1): the final Linear gives M plans and M confidence logits,
+    [plan_0 (D), ..., plan_{M-1} (D), logit_0, ..., logit_{M-1}], trained winner-takes-all (losses.py); the
+    plan flown is the one with the largest logit (`Policy.select`), the others are alternatives for the
+    inference nodes' safety layer (docs/learning.md, "Multiple hypotheses")
+
 ReLU after every hidden layer of the three MLPs (the thesis: "All networks use ReLU"); the final Linear has
 none.
 
@@ -59,8 +64,11 @@ class PolicyNet(nn.Module):
         state_dim: int = STATE_DIM,
         prior: Tensor | None = None,
         depth_grid: Sequence[int] = (),
+        hypotheses: int = 1,
     ) -> None:
         super().__init__()
+        if int(hypotheses) < 1:
+            raise ValueError(f"hypotheses must be >= 1, got {hypotheses}")
         if len(depth_grid) not in (0, 2) or any(int(n) < 1 for n in depth_grid):
             raise ValueError(f"depth_grid must be () or (rows, cols) >= 1, got {tuple(depth_grid)}")
         # Top-level ints (not a tuple) so TorchScript sees a plain, constant-size grid.
@@ -73,19 +81,25 @@ class PolicyNet(nn.Module):
         self.state_mlp = mlp(state_dim, state_mlp)
         grid_dim = self.grid_rows * self.grid_cols
         self.planning_mlp = mlp(depth_mlp[-1] + state_mlp[-1] + grid_dim, planning_mlp)
-        self.head = nn.Linear(planning_mlp[-1], out_dim)
+        self.hypotheses = int(hypotheses)
+        self.plan_dim = int(out_dim)
+        total = head_output_dim(out_dim, self.hypotheses)
+        self.head = nn.Linear(planning_mlp[-1], total)
         for m in [self.depth_mlp, self.state_mlp, self.planning_mlp, self.head]:
             for layer in m.modules():
                 if isinstance(layer, nn.Linear):
                     # PyTorch's default Linear init (Kaiming-uniform a=sqrt(5)); explicit so it is seeded
                     # here.
                     layer.reset_parameters()
-        # Fixed linear map of the state added to the head's output (model.output_prior; zeros for none).
-        # Not persistent: it follows from the configuration, so checkpoints from before it still load.
+        # Fixed linear map of the state added to the head's output (model.output_prior; zeros for none): the
+        # same for every hypothesis, none for the confidence logits. Not persistent: it follows from the
+        # configuration, so checkpoints from before it still load.
         if prior is None:
             prior = torch.zeros(out_dim, state_dim)
         if tuple(prior.shape) != (out_dim, state_dim):
             raise ValueError(f"prior must be ({out_dim}, {state_dim}), got {tuple(prior.shape)}")
+        if self.hypotheses > 1:
+            prior = torch.cat([prior.repeat(self.hypotheses, 1), torch.zeros(self.hypotheses, state_dim)])
         self.register_buffer("prior", prior.to(torch.float32), persistent=False)
 
     def forward(self, depth_x: Tensor, state_x: Tensor) -> Tensor:
@@ -105,11 +119,17 @@ class PolicyNet(nn.Module):
         return near.flatten(1)
 
 
+def head_output_dim(plan_dim: int, hypotheses: int) -> int:
+    """Width of the network's flat output: one plan, or M plans and their M confidence logits."""
+    return plan_dim if hypotheses == 1 else hypotheses * (plan_dim + 1)
+
+
 class Policy(nn.Module):
     """Preprocessing + PolicyNet + output decoding. `forward` is what the inference nodes call.
 
     forward(depth_m (B,H,W) metres float32 (+inf = no return), p_world_body (B,3), v_world (B,3),
-            q_world_body (B,4) xyzw, goal_world (B,3)) -> control points in the world frame (B, K, 3).
+            q_world_body (B,4) xyzw, goal_world (B,3)) -> control points in the world frame (B, K, 3);
+    with several hypotheses, those of the most confident one.
     """
 
     def __init__(self, cfg: ModelConfig, num_ctrl_pts: int, horizon_s: float) -> None:
@@ -142,6 +162,7 @@ class Policy(nn.Module):
             cfg.planning_mlp,
             prior=prior,
             depth_grid=cfg.depth_grid,
+            hypotheses=cfg.hypotheses,
         )
         # Top-level copies of the interface parameters: preserved as attributes of the frozen TorchScript
         # file.
@@ -150,13 +171,36 @@ class Policy(nn.Module):
         self.max_depth_m = float(cfg.max_depth_m)
         self.num_ctrl_pts = int(num_ctrl_pts)
         self.horizon_s = float(horizon_s)
+        self.num_hypotheses = int(cfg.hypotheses)
+        self.plan_dim = int(self.codec.out_dim)
 
     def forward(
         self, depth_m: Tensor, p_world_body: Tensor, v_world: Tensor, q_world_body: Tensor, goal_world: Tensor
     ) -> Tensor:
         _check_state_shapes(depth_m, p_world_body, v_world, q_world_body, goal_world)
         y = self.forward_prepared(self.depth_pre(depth_m), p_world_body, v_world, q_world_body, goal_world)
-        return self.codec.decode(y, p_world_body, q_world_body)
+        return self.codec.decode(self.select(y), p_world_body, q_world_body)
+
+    @torch.jit.export
+    def split_hypotheses(self, y: Tensor) -> tuple[Tensor, Tensor]:
+        """Flat network output (B, head width) -> plans (B, M, D) and confidence logits (B, M) (zeros for
+        M = 1)."""
+        m = self.num_hypotheses
+        d = self.plan_dim
+        if y.dim() != 2 or y.size(1) != head_output_dim(d, m):
+            raise RuntimeError("network output must be (B, head width) for this policy's hypotheses")
+        if m == 1:
+            return y.unsqueeze(1), torch.zeros(y.size(0), 1, dtype=y.dtype, device=y.device)
+        return y[:, : m * d].reshape(y.size(0), m, d), y[:, m * d :]
+
+    @torch.jit.export
+    def select(self, y: Tensor) -> Tensor:
+        """Flat network output -> the plan flown (B, D): the largest logit's (the first on ties)."""
+        if self.num_hypotheses == 1:
+            return y
+        plans, logits = self.split_hypotheses(y)
+        best = torch.argmax(logits, dim=1)
+        return plans[torch.arange(plans.size(0), device=y.device), best]
 
     @torch.jit.export
     def preprocess_depth(self, depth_m: Tensor) -> Tensor:

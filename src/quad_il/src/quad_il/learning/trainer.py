@@ -73,7 +73,7 @@ from quad_il.learning.distributed import (
     revert_batchnorm,
 )
 from quad_il.learning.export import export_torchscript, policy_metadata
-from quad_il.learning.losses import batch_loss, eil_per_sample
+from quad_il.learning.losses import batch_loss, eil_per_sample, wta_per_sample
 from quad_il.learning.model import Policy, build_policy
 from quad_il.learning.preprocessing import DepthPreprocessor
 from quad_il.learning.runinfo import dataset_manifest, software_info
@@ -476,6 +476,10 @@ class Trainer:
     def _batch_loss(self, y: Tensor, batch: Batch) -> tuple[Tensor, Tensor]:
         """(batch mean, per-sample losses) of optim.loss; EIL reads each row's partition."""
         o = self.cfg.optim
+        if self.cfg.model.hypotheses > 1:
+            plans, logits = self.policy.split_hypotheses(y)
+            per, _ = wta_per_sample(o.loss, plans, logits, batch.target, o.wta_relax, o.wta_confidence_weight)
+            return per.mean(), per
         if o.loss != "eil":
             return batch_loss(o.loss, y, batch.target)
         part = self.partition.index_select(0, torch.from_numpy(batch.indices)).to(y.device)
@@ -579,7 +583,8 @@ class Trainer:
                     raise self._nonfinite(epoch, batch, per, "validation loss")
                 bad = (batch, per.cpu())  # reported by every rank together, after the all-reduce
                 break
-            ctrl = self.policy.decode(y, batch.p_world_body, batch.q_world_body).cpu().numpy()
+            ctrl = self.policy.decode(self.policy.select(y), batch.p_world_body, batch.q_world_body)
+            ctrl = ctrl.cpu().numpy()
             expert = self.data.ctrl_world.index_select(0, torch.from_numpy(batch.indices)).numpy()
             loss_sum += float(per.sum())
             mse_sum += float(metrics.mse(ctrl, expert).sum())
