@@ -224,6 +224,34 @@ def test_evaluation_writes_per_sample_metrics_summary_and_figures(
         assert img.shape[0] > 500 and img.std() > 0.01  # drawn, not blank
 
 
+def test_evaluation_of_several_hypotheses_reports_the_flown_plan_and_the_nearest(tmp_path: Path) -> None:
+    torch.manual_seed(0)
+    cfg = ModelConfig(
+        input_height=32, input_width=32, state_frame="local", output_frame="local", hypotheses=3
+    )
+    policy = build_policy(cfg, 10, 2.0)
+    path = tmp_path / "policy.ts"
+    export_torchscript(policy, path, policy_metadata(policy, cfg.model_dump(mode="json")))
+    data = write_synthetic_npz(
+        tmp_path / "h.npz", num_episodes=2, samples_per_episode=5, first_world_seed=7000
+    )
+    out = tmp_path / "eval"
+    evaluate(path, [data], out)
+    with open(out / "per_sample.csv") as f:
+        rows = list(csv.DictReader(f))
+    flown = np.array([float(r["mse_world"]) for r in rows])
+    best = np.array([float(r["mse_best_of_m_world"]) for r in rows])
+    assert (best <= flown + 1e-9).all()
+    md = (out / "summary.md").read_text()
+    assert "The policy has 3 hypotheses" in md
+    # A one-plan policy has no such column.
+    one = tmp_path / "one.ts"
+    cfg1 = cfg.model_copy(update={"hypotheses": 1})
+    p1 = build_policy(cfg1, 10, 2.0)
+    export_torchscript(p1, one, policy_metadata(p1, cfg1.model_dump(mode="json")))
+    assert "mse_best_of_m_world" not in evaluate(one, [data], tmp_path / "eval1")["metrics"]
+
+
 def test_evaluation_refuses_worlds_seen_in_training(exported_policy: Path, tmp_path: Path) -> None:
     data = write_synthetic_npz(
         tmp_path / "seen.npz", num_episodes=2, samples_per_episode=3, first_world_seed=1000

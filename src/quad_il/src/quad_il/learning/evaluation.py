@@ -6,7 +6,8 @@ similarity and Bhattacharyya distance in two forms (definitions in metrics.py) i
 (world-frame control points, flattened) and in the vehicle's yaw-only local frame. Outputs in the output
 directory:
 
-    per_sample.csv     one row per sample (dataset index, world seed, episode, the eight metrics)
+    per_sample.csv     one row per sample (dataset index, world seed, episode, the eight metrics; with several
+                       hypotheses also the MSE of the hypothesis nearest the expert, `mse_best_of_m_world`)
     summary.md         mean with 95 % confidence interval, median, thesis values, held-out check
     summary.json       the same numbers
     bsplines_world.png, bsplines_local.png   the 12-panel expert-vs-learned figure
@@ -91,6 +92,8 @@ class Predictions:
     world_seed: NDArray[np.uint64]
     source_index: NDArray[np.int64]  # index within its source file
     source: list[str]
+    # Every hypothesis of a several-hypothesis policy, world frame (N, M, K, 3); None with one plan.
+    hypotheses_world: NDArray[np.float64] | None = None
 
 
 def predict(
@@ -100,6 +103,11 @@ def predict(
     shards: ShardOptions = DEFAULT_SHARD_OPTIONS,
 ) -> Predictions:
     parts: dict[str, list[Any]] = {k: [] for k in Predictions.__dataclass_fields__}
+    fn = policy.fn
+    # An exported file's metadata has output.hypotheses, a checkpoint's its model configuration.
+    meta_out = policy.meta.get("output", {}).get("hypotheses")
+    num_hyp = int(meta_out if meta_out is not None else policy.meta.get("model", {}).get("hypotheses", 1))
+    every = num_hyp > 1 and hasattr(fn, "split_hypotheses") and hasattr(fn, "forward_prepared")
     for path, kind in expand_paths(paths):
         arrays = read_source(path, kind, shards)
         n, _, _, _ = validate_arrays(arrays, str(path))
@@ -112,7 +120,13 @@ def predict(
             g = torch.from_numpy(np.asarray(arrays["goal_world"][sl], dtype=np.float32))
             expert = torch.from_numpy(np.asarray(arrays["bspline_ctrl_world"][sl], dtype=np.float64))
             with torch.no_grad():
-                learned = policy.fn(depth, p, v, q, g).double()
+                learned = fn(depth, p, v, q, g).double()
+                if every:
+                    plans, _ = fn.split_hypotheses(
+                        fn.forward_prepared(fn.preprocess_depth(depth), p, v, q, g)
+                    )
+                    hyp = torch.stack([fn.decode(plans[:, m], p, q) for m in range(num_hyp)], dim=1)
+                    parts["hypotheses_world"].append(hyp.double().numpy())
             if not bool(torch.isfinite(learned).all()):
                 raise ValueError(f"{path}: the policy output NaN/Inf for records {sl.start}..{sl.stop - 1}")
             yaw = yaw_from_quaternion(q.double())
@@ -124,9 +138,11 @@ def predict(
         parts["world_seed"].append(np.asarray(arrays["world_seed"]).astype(np.uint64))
         parts["source_index"].append(np.arange(n, dtype=np.int64))
         parts["source"].append([str(path)] * n)
+    fields = [k for k in Predictions.__dataclass_fields__ if k not in ("source", "hypotheses_world")]
     return Predictions(
-        *(np.concatenate(parts[k]) for k in list(Predictions.__dataclass_fields__)[:-1]),  # type: ignore[arg-type]
+        *(np.concatenate(parts[k]) for k in fields),  # type: ignore[arg-type]
         source=[s for chunk in parts["source"] for s in chunk],
+        hypotheses_world=np.concatenate(parts["hypotheses_world"]) if every else None,
     )
 
 
@@ -139,6 +155,10 @@ def per_sample_metrics(pred: Predictions, reg_m2: float) -> dict[str, NDArray[np
         out[f"cosine_{frame}"] = metrics.cosine_similarity(lrn, e)
         out[f"bhattacharyya_flat_{frame}"] = metrics.bhattacharyya_flat(lrn, e)
         out[f"bhattacharyya_points_{frame}"] = metrics.bhattacharyya_points(lrn, e, reg_m2)
+    if pred.hypotheses_world is not None:
+        h = pred.hypotheses_world
+        per_h = np.stack([metrics.mse(h[:, m], pred.expert_world) for m in range(h.shape[1])], axis=1)
+        out["mse_best_of_m_world"] = per_h.min(axis=1)
     return out
 
 
@@ -170,6 +190,7 @@ def write_report(
     with open(out / "per_sample.csv", "w", newline="") as f:
         w = csv.writer(f)
         cols = [f"{m}_{fr}" for fr in FRAMES for m in METRIC_NAMES]
+        cols += [c for c in values if c not in cols]
         w.writerow(["source", "source_index", "world_seed", "episode_id", *cols])
         for i in range(n):
             row = [
@@ -243,6 +264,15 @@ def write_report(
                 f"| {_fmt(s['median'])} "
                 f"| {thesis} | {target} |"
             )
+    if "mse_best_of_m_world" in summary["metrics"]:
+        s = summary["metrics"]["mse_best_of_m_world"]
+        m = pred.hypotheses_world.shape[1] if pred.hypotheses_world is not None else 0
+        lines += [
+            "",
+            f"The policy has {m} hypotheses; the rows above are the most confident one's (the plan flown "
+            "first). The hypothesis nearest the expert (an oracle choice, a diagnostic only): MSE "
+            f"{_fmt(s['mean'])} ± {_fmt(s['ci95_half_width'])} m^2 (median {_fmt(s['median'])}).",
+        ]
     lines += [
         "",
         "MSE and the point-set Bhattacharyya distance are invariant under the rigid world-to-local transform",
