@@ -156,6 +156,13 @@ def test_hypotheses_metadata_is_read_checked_and_defaults_to_one(policies) -> No
         meta["output"]["hypotheses"] = bad
         with pytest.raises(PolicyFormatError, match=r"'output.hypotheses' must be an integer in \[1, 8\]"):
             parse_policy_meta(meta, "p.ts")
+    meta["output"]["hypotheses"] = 3
+    assert not parse_policy_meta(meta, "p.ts").mean_first  # no hypotheses_first: confidence
+    meta["output"]["hypotheses_first"] = "mean"
+    assert parse_policy_meta(meta, "p.ts").mean_first
+    meta["output"]["hypotheses_first"] = "best"
+    with pytest.raises(PolicyFormatError, match="'output.hypotheses_first' must be 'confidence' or 'mean'"):
+        parse_policy_meta(meta, "p.ts")
 
 
 def test_ordered_plans_put_the_most_confident_first_ties_by_index_nan_last(policies) -> None:
@@ -172,6 +179,9 @@ def test_ordered_plans_put_the_most_confident_first_ties_by_index_nan_last(polic
     assert order([0.1, 2.0, -1.0]) == [1, 0, 2]
     assert order([1.0, 1.0, 1.0]) == [0, 1, 2]
     assert order([float("nan"), 0.0, 3.0]) == [2, 1, 0]
+    mean_first = dataclasses.replace(meta, mean_first=True)
+    y = torch.cat([plans, torch.tensor([9.0, 0.0, 3.0])]).reshape(1, -1)
+    assert [i for i, _ in ordered_plans(y, mean_first)] == [0, 2, 1]  # plan 0 whatever its logit
     one = policies["world"].meta
     y = torch.rand(1, 30)
     [(i, plan)] = ordered_plans(y, one)
@@ -190,6 +200,11 @@ def test_the_file_refuses_metadata_with_another_number_of_hypotheses(tmp_path: P
         match="attribute num_hypotheses = 3 disagrees with the metadata's output.hypotheses 2",
     ):
         LoadedPolicy(tmp_path / "lying.ts")
+    meta["output"]["hypotheses"] = 3
+    meta["output"]["hypotheses_first"] = "mean"
+    torch.jit.save(module, str(tmp_path / "lying2.ts"), _extra_files={META_FILE: json.dumps(meta)})
+    with pytest.raises(PolicyFormatError, match="attribute mean_first = False disagrees"):
+        LoadedPolicy(tmp_path / "lying2.ts")
 
 
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")

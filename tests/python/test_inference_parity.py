@@ -158,6 +158,18 @@ POLICIES = {
         ModelConfig(input_height=32, input_width=32, state_frame="local", output_frame="local", hypotheses=3),
         False,
     ),
+    # The mean plan first, then the others by logit.
+    "local_bspline_mean_first": (
+        ModelConfig(
+            input_height=32,
+            input_width=32,
+            state_frame="local",
+            output_frame="local",
+            hypotheses=3,
+            hypotheses_first="mean",
+        ),
+        False,
+    ),
     # Plans that continue the vehicle's motion (output prior): they reach surfaces, so the steering searches.
     "local_bspline_cv_prior": (
         ModelConfig(
@@ -247,8 +259,10 @@ def test_trajectory_layout_and_decisions_agree(run_both) -> None:
     np.testing.assert_array_equal(cpp["proposed_hypothesis"], [d.proposed_hypothesis for d in py])
     py_h = [-1 if d.recovery_hypothesis is None else d.recovery_hypothesis for d in py]
     np.testing.assert_array_equal(cpp["recovery_hypothesis"], py_h)
-    if name == "local_bspline_hypotheses":
+    if name in ("local_bspline_hypotheses", "local_bspline_mean_first"):
         assert cpp["y"].shape[1] == 3 * (30 + 1)  # every hypothesis and its logit
+    if name == "local_bspline_mean_first":
+        assert not cpp["proposed_hypothesis"].any()
     for i, d in enumerate(py):
         if d.recovery is not None:
             np.testing.assert_allclose(cpp["recovery_ctrl"][i], d.recovery.ctrl_world, rtol=0, atol=TOL)

@@ -489,6 +489,27 @@ def test_select_flies_the_plan_with_the_largest_logit_first_on_ties() -> None:
         torch.testing.assert_close(policy(*inputs, goal), expected)
 
 
+def test_mean_first_flies_plan_0_whatever_the_logits() -> None:
+    cfg = ModelConfig(
+        input_height=32,
+        input_width=32,
+        state_frame="local",
+        output_frame="local",
+        hypotheses=3,
+        hypotheses_first="mean",
+    )
+    policy = build_policy(cfg, 10, 2.0)
+    d = policy.plan_dim
+    y = torch.cat(
+        [torch.arange(3 * d, dtype=torch.float32).reshape(1, -1), torch.tensor([[-5.0, 9.0, 1.0]])], 1
+    )
+    assert torch.equal(policy.select(y), y[:, :d])
+    with pytest.raises(ValueError, match="hypotheses_first: mean needs model.hypotheses >= 3"):
+        ModelConfig(hypotheses=2, hypotheses_first="mean")
+    with pytest.raises(ValueError, match="hypotheses_first"):
+        ModelConfig(hypotheses=3, hypotheses_first="best")
+
+
 def test_prior_is_added_to_every_hypothesis_and_not_to_the_logits() -> None:
     cfg = ModelConfig(
         input_height=32,
@@ -584,6 +605,7 @@ def net_inputs(policy: Policy, b: int, seed: int) -> tuple[torch.Tensor, torch.T
         {"state_frame": "local", "output_frame": "local", "output_prior": "constant_velocity"},
         {"state_frame": "local", "output_frame": "local", "depth_grid": [4, 5]},
         {"state_frame": "local", "output_frame": "local", "hypotheses": 3},
+        {"state_frame": "local", "output_frame": "local", "hypotheses": 4, "hypotheses_first": "mean"},
     ],
 )
 def test_torchscript_export_equals_eager_policy(tmp_path: Path, kw: dict[str, object]) -> None:
@@ -626,6 +648,8 @@ def test_torchscript_export_equals_eager_policy(tmp_path: Path, kw: dict[str, ob
     assert (module.input_height, module.input_width, module.max_depth_m) == (32, 40, 8.0)
     assert (module.num_ctrl_pts, module.horizon_s) == (10, 2.0)
     assert module.num_hypotheses == loaded_meta["output"]["hypotheses"] == kw.get("hypotheses", 1)
+    assert loaded_meta["output"]["hypotheses_first"] == kw.get("hypotheses_first", "confidence")
+    assert module.mean_first == (kw.get("hypotheses_first") == "mean")
     assert loaded_meta == json.loads(json.dumps(meta))
     assert loaded_meta["preprocessing"]["input_width"] == 40
     assert loaded_meta["preprocessing"]["state_frame"] == kw.get("state_frame", "world")

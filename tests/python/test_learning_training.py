@@ -128,6 +128,12 @@ def test_multiple_hypotheses_train_deterministically_and_export(dataset: Path, t
 
     loaded = LoadedPolicy(a.policy_path)
     assert loaded.meta.hypotheses == 3 and loaded.meta.network_output_dim == 3 * (30 + 1)
+    assert not loaded.meta.mean_first
+    # The mean plan first: plan 0 trained on every sample, plans 1 and 2 winner-takes-all.
+    extra_mean = ("optim.epochs=1", "model.hypotheses=3", "model.hypotheses_first=mean", extra[2])
+    m = Trainer(tiny_config(dataset, tmp_path, "mh_mean", *extra_mean)).fit()
+    assert loss_rows(m.run_dir)[0] != loss_rows(a.run_dir)[0]
+    assert LoadedPolicy(m.policy_path).meta.mean_first
 
 
 def test_resume_continues_the_same_curve(dataset: Path, tmp_path: Path) -> None:

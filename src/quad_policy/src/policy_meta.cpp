@@ -163,6 +163,14 @@ PolicyMeta ParsePolicyMeta(const std::string& json_text, const std::string& sour
     r.Fail("output.network_representation", "must be 'bspline' or 'polynomial', got '" + rep + "'");
   }
   m.hypotheses = r.OptionalIntIn("output.hypotheses", 1, kMaxHypotheses, 1);
+  const YAML::Node output = r.Node("output");
+  if (output["hypotheses_first"]) {
+    const std::string first = r.Get<std::string>("output.hypotheses_first");
+    if (first != "confidence" && first != "mean") {
+      r.Fail("output.hypotheses_first", "must be 'confidence' or 'mean', got '" + first + "'");
+    }
+    m.mean_first = first == "mean";
+  }
   return m;
 }
 

@@ -200,8 +200,9 @@ std::vector<HypothesisPlan> OrderedPlans(const std::vector<float>& y, const Poli
   std::vector<int> order(m);
   std::iota(order.begin(), order.end(), 0);
   const float* logits = y.data() + static_cast<std::size_t>(m) * d;
-  // A strict weak order even with NaN: NaN logits rank after every number, then by index.
-  std::stable_sort(order.begin(), order.end(), [logits](int a, int b) {
+  // A strict weak order even with NaN: NaN logits rank after every number, then by index. With mean_first
+  // plan 0 stays first.
+  std::stable_sort(order.begin() + (meta.mean_first ? 1 : 0), order.end(), [logits](int a, int b) {
     const bool na = std::isnan(logits[a]), nb = std::isnan(logits[b]);
     if (na != nb) return nb;
     return !na && logits[a] > logits[b];

@@ -120,6 +120,12 @@ TorchPolicy::TorchPolicy(const std::string& path) : impl_(std::make_unique<Impl>
       throw PolicyFormatError(path + ": attribute num_hypotheses = " + std::to_string(file_hypotheses) +
                               " disagrees with the metadata's output.hypotheses " + std::to_string(m.hypotheses));
     }
+    const bool file_mean_first =
+        impl_->module.hasattr("mean_first") && impl_->module.attr("mean_first").toBool();
+    if (file_mean_first != m.mean_first) {
+      throw PolicyFormatError(path + ": attribute mean_first = " + (file_mean_first ? "true" : "false") +
+                              " disagrees with the metadata's output.hypotheses_first");
+    }
   } catch (const c10::Error& e) {
     throw PolicyFormatError(path + ": missing policy attribute: " + e.what_without_backtrace());
   }

@@ -120,6 +120,16 @@ TEST(PolicyMeta, HypothesesAreOptionalBoundedAndSetTheNetworkOutputWidth) {
   EXPECT_EQ(three.hypotheses, 3);
   EXPECT_EQ(three.output_dim(), 30);
   EXPECT_EQ(three.network_output_dim(), 93);
+  EXPECT_FALSE(three.mean_first);
+  const std::string three_key = "\"hypotheses\": 3";
+  std::string mean = with("3");
+  mean.replace(mean.find(three_key), three_key.size(), three_key + ", \"hypotheses_first\": \"mean\"");
+  EXPECT_TRUE(ParsePolicyMeta(mean, "p.ts").mean_first);
+  std::string best = with("3");
+  best.replace(best.find(three_key), three_key.size(), three_key + ", \"hypotheses_first\": \"best\"");
+  EXPECT_NE(ErrorOf([&] { ParsePolicyMeta(best, "p.ts"); })
+                .find("'output.hypotheses_first' must be 'confidence' or 'mean', got 'best'"),
+            std::string::npos);
   for (const std::string bad : {"0", "9", "2.5", "true", "\"3\""}) {
     EXPECT_NE(ErrorOf([&] { ParsePolicyMeta(with(bad), "p.ts"); })
                   .find("p.ts: policy metadata key 'output.hypotheses' must be an integer in [1, 8]"),
@@ -150,6 +160,9 @@ TEST(OrderedPlans, MostConfidentFirstTiesByIndexNanLast) {
   const float nan = std::numeric_limits<float>::quiet_NaN();
   EXPECT_EQ(order(nan, 0.0f, 3.0f), (std::vector<int>{2, 1, 0}));
   EXPECT_EQ(order(nan, nan, 0.0f), (std::vector<int>{2, 0, 1}));
+  m.mean_first = true;  // plan 0 first whatever its logit, then the others by logit
+  EXPECT_EQ(order(9.0f, 0.0f, 3.0f), (std::vector<int>{0, 2, 1}));
+  m.mean_first = false;
   y.pop_back();
   EXPECT_NE(ErrorOf([&] { OrderedPlans(y, m); }).find("network output has 92 values, the policy declares 93"),
             std::string::npos);

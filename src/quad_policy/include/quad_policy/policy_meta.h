@@ -45,6 +45,9 @@ struct PolicyMeta {
   OutputRepresentation representation = OutputRepresentation::kBspline;
   int poly_degree = 0;  // used with kPolynomial only
   int hypotheses = 1;   // plans per forward pass (output.hypotheses; files without the key: 1)
+  // Plan 0 (the regression) first, the others by logit (output.hypotheses_first "mean"); false: all by logit
+  // ("confidence", and files without the key).
+  bool mean_first = false;
 
   // Knot interval of the uniform cubic B-spline: horizon_s / (K - 3).
   double knot_dt_s() const { return horizon_s / (num_ctrl_pts - kPolicyBsplineOrder); }

@@ -88,8 +88,9 @@ struct HypothesisPlan {
 };
 
 // The network's flat output (network_output_dim values) -> its plans, most confident first: the largest
-// logit, equal logits in index order (as the file's `select`), NaN logits last; one plan: {0, y}. The Python
-// `ordered_plans` makes the same order. Throws std::invalid_argument when y has the wrong length.
+// logit, equal logits in index order (as the file's `select`), NaN logits last; with meta.mean_first plan 0
+// first and the others after it in that order; one plan: {0, y}. The Python `ordered_plans` makes the same
+// order. Throws std::invalid_argument when y has the wrong length.
 std::vector<HypothesisPlan> OrderedPlans(const std::vector<float>& y, const PolicyMeta& meta);
 
 // The matrices of learning/preprocessing.py: uniform_cubic_basis (S x K) and the decode map pinv(A) T.

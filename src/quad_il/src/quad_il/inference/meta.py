@@ -36,6 +36,9 @@ class PolicyMeta:
     poly_degree: int  # 0 for the B-spline representation
     velocity_input: bool = True  # false: the state's velocity entries are zero (model.velocity_input)
     hypotheses: int = 1  # plans per forward pass (model.hypotheses); files without output.hypotheses: 1
+    # True: plan 0 (the regression) is flown first, the others follow by logit (output.hypotheses_first
+    # "mean"); false: all by logit ("confidence", and files without the key).
+    mean_first: bool = False
 
     @property
     def knot_dt_s(self) -> float:
@@ -147,4 +150,17 @@ def parse_policy_meta(meta: dict[str, Any], source: str) -> PolicyMeta:
         poly_degree=_int_at_least(meta, "model.poly_degree", 1, source) if rep == "polynomial" else 0,
         velocity_input=_optional_bool(meta, "preprocessing.velocity_input", True, source),
         hypotheses=_optional_int_in(meta, "output.hypotheses", 1, MAX_HYPOTHESES, 1, source),
+        mean_first=_hypotheses_first(meta, source) == "mean",
     )
+
+
+def _hypotheses_first(meta: dict[str, Any], source: str) -> str:
+    """output.hypotheses_first: "confidence" (and files without the key) or "mean"."""
+    out = _get(meta, "output", source)
+    v = out.get("hypotheses_first", "confidence") if isinstance(out, dict) else "confidence"
+    if v not in ("confidence", "mean"):
+        raise PolicyFormatError(
+            f"{source}: policy metadata key 'output.hypotheses_first' must be 'confidence' or 'mean', "
+            f"got {v!r}"
+        )
+    return v

@@ -59,6 +59,12 @@ class LoadedPolicy:
                 f"{self.path}: attribute num_hypotheses = {file_hypotheses!r} disagrees with the metadata's "
                 f"output.hypotheses {m.hypotheses!r}"
             )
+        file_mean_first = bool(getattr(self.module, "mean_first", False))
+        if file_mean_first != m.mean_first:
+            raise PolicyFormatError(
+                f"{self.path}: attribute mean_first = {file_mean_first!r} disagrees with the metadata's "
+                f"output.hypotheses_first"
+            )
         self.has_forward_net = hasattr(self.module, "forward_net")
         if not self.has_forward_net and not hasattr(self.module, "forward_prepared"):
             raise PolicyFormatError(f"{self.path}: the file has neither forward_net nor forward_prepared")
@@ -121,8 +127,9 @@ class LoadedPolicy:
 
 def ordered_plans(y: torch.Tensor, meta: PolicyMeta) -> list[tuple[int, torch.Tensor]]:
     """The network's output (1, network_output_dim) -> [(hypothesis index, plan (1, output_dim)), ...], most
-    confident first (largest logit; equal logits in index order, as the file's `select`; NaN logits last).
-    One plan: [(0, y)]. The C++ OrderedPlans makes the same order."""
+    confident first (largest logit; equal logits in index order, as the file's `select`; NaN logits last);
+    with `meta.mean_first` plan 0 first and the others after it in that order. One plan: [(0, y)]. The C++
+    OrderedPlans makes the same order."""
     d, m = meta.output_dim, meta.hypotheses
     flat = y.reshape(-1)
     if flat.numel() != meta.network_output_dim:
@@ -132,5 +139,8 @@ def ordered_plans(y: torch.Tensor, meta: PolicyMeta) -> list[tuple[int, torch.Te
     if m == 1:
         return [(0, flat.reshape(1, -1))]
     logits = [float(v) for v in flat[m * d :]]
-    order = sorted(range(m), key=lambda i: (math.inf if math.isnan(logits[i]) else -logits[i], i))
+    first = 1 if meta.mean_first else 0
+    order = list(range(first)) + sorted(
+        range(first, m), key=lambda i: (math.inf if math.isnan(logits[i]) else -logits[i], i)
+    )
     return [(i, flat[i * d : (i + 1) * d].reshape(1, -1)) for i in order]

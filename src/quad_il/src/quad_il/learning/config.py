@@ -76,6 +76,10 @@ class ModelConfig(_Strict):
     # Plans per decision (multiple-hypothesis output, docs/learning.md "Multiple hypotheses"): M > 1 makes the
     # head output M plans and M confidence logits, trained winner-takes-all; 1 = the thesis's single plan.
     hypotheses: int = Field(1, ge=1, le=8)
+    # Which plan is flown first: `confidence`, the largest logit's (all M trained winner-takes-all); `mean`,
+    # plan 0, trained on every sample with optim.loss as the single plan is, while plans 1..M-1 are trained
+    # winner-takes-all as alternatives (ordered by their logits); needs hypotheses >= 3.
+    hypotheses_first: Literal["confidence", "mean"] = "confidence"
 
     @model_validator(mode="after")
     def _widths_positive(self) -> ModelConfig:
@@ -92,6 +96,11 @@ class ModelConfig(_Strict):
                 f"model.depth_grid must be [] or [rows, cols] with 1 <= rows <= input_height "
                 f"({self.input_height}) and 1 <= cols <= input_width ({self.input_width}), "
                 f"got {self.depth_grid}"
+            )
+        if self.hypotheses_first == "mean" and self.hypotheses < 3:
+            raise ValueError(
+                "model.hypotheses_first: mean needs model.hypotheses >= 3 (the mean plan and at least two "
+                f"alternatives trained winner-takes-all), got {self.hypotheses}"
             )
         if self.output_prior != "none" and not self.velocity_input:
             raise ValueError(

@@ -52,6 +52,7 @@ PRESERVED = [
     "split_hypotheses",
     "num_hypotheses",
     "plan_dim",
+    "mean_first",
     "input_height",
     "input_width",
     "max_depth_m",
@@ -97,10 +98,16 @@ def policy_metadata(
             "network_representation": "polynomial" if codec.polynomial else "bspline",
             "network_prior": str(model_cfg.get("output_prior", "none")),
             "hypotheses": policy.num_hypotheses,
+            "hypotheses_first": "mean" if policy.mean_first else "confidence",
             "hypotheses_layout": (
                 "one plan of D values"
                 if policy.num_hypotheses == 1
-                else "M plans of D values each, then M confidence logits; the largest logit is flown"
+                else (
+                    "M plans of D values each, then M confidence logits; plan 0 is flown first, then the "
+                    "others by logit"
+                    if policy.mean_first
+                    else "M plans of D values each, then M confidence logits; the largest logit is flown"
+                )
             ),
         },
         "preprocessing": {

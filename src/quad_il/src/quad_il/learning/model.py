@@ -11,8 +11,9 @@
 
     optionally (model.hypotheses = M > 1): the final Linear gives M plans and M confidence logits,
     [plan_0 (D), ..., plan_{M-1} (D), logit_0, ..., logit_{M-1}], trained winner-takes-all (losses.py); the
-    plan flown is the one with the largest logit (`Policy.select`), the others are alternatives for the
-    inference nodes' safety layer (docs/learning.md, "Multiple hypotheses")
+    plan flown is the one with the largest logit (`Policy.select`), or plan 0, a plain regression, with
+    model.hypotheses_first = mean; the others are alternatives for the inference nodes' safety layer
+    (docs/learning.md, "Multiple hypotheses")
 
 ReLU after every hidden layer of the three MLPs (the thesis: "All networks use ReLU"); the final Linear has
 none.
@@ -173,6 +174,8 @@ class Policy(nn.Module):
         self.horizon_s = float(horizon_s)
         self.num_hypotheses = int(cfg.hypotheses)
         self.plan_dim = int(self.codec.out_dim)
+        # model.hypotheses_first = mean: plan 0 is the regression and always flown first (its logit unused).
+        self.mean_first = cfg.hypotheses_first == "mean"
 
     def forward(
         self, depth_m: Tensor, p_world_body: Tensor, v_world: Tensor, q_world_body: Tensor, goal_world: Tensor
@@ -195,10 +198,13 @@ class Policy(nn.Module):
 
     @torch.jit.export
     def select(self, y: Tensor) -> Tensor:
-        """Flat network output -> the plan flown (B, D): the largest logit's (the first on ties)."""
+        """Flat network output -> the plan flown first (B, D): the largest logit's (the first on ties), or
+        plan 0 with model.hypotheses_first = mean."""
         if self.num_hypotheses == 1:
             return y
         plans, logits = self.split_hypotheses(y)
+        if self.mean_first:
+            return plans[:, 0]
         best = torch.argmax(logits, dim=1)
         return plans[torch.arange(plans.size(0), device=y.device), best]
 

@@ -73,7 +73,7 @@ from quad_il.learning.distributed import (
     revert_batchnorm,
 )
 from quad_il.learning.export import export_torchscript, policy_metadata
-from quad_il.learning.losses import batch_loss, eil_per_sample, wta_per_sample
+from quad_il.learning.losses import batch_loss, eil_per_sample, per_sample_loss, wta_per_sample
 from quad_il.learning.model import Policy, build_policy
 from quad_il.learning.preprocessing import DepthPreprocessor
 from quad_il.learning.runinfo import dataset_manifest, software_info
@@ -478,7 +478,16 @@ class Trainer:
         o = self.cfg.optim
         if self.cfg.model.hypotheses > 1:
             plans, logits = self.policy.split_hypotheses(y)
-            per, _ = wta_per_sample(o.loss, plans, logits, batch.target, o.wta_relax, o.wta_confidence_weight)
+            if self.cfg.model.hypotheses_first == "mean":
+                # Plan 0 is the single plan's regression; the others are alternatives, winner-takes-all.
+                alt, _ = wta_per_sample(
+                    o.loss, plans[:, 1:], logits[:, 1:], batch.target, o.wta_relax, o.wta_confidence_weight
+                )
+                per = per_sample_loss(o.loss, plans[:, 0], batch.target) + alt
+            else:
+                per, _ = wta_per_sample(
+                    o.loss, plans, logits, batch.target, o.wta_relax, o.wta_confidence_weight
+                )
             return per.mean(), per
         if o.loss != "eil":
             return batch_loss(o.loss, y, batch.target)
