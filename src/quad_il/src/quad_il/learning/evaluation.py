@@ -269,8 +269,9 @@ def write_report(
         m = pred.hypotheses_world.shape[1] if pred.hypotheses_world is not None else 0
         lines += [
             "",
-            f"The policy has {m} hypotheses; the rows above are the most confident one's (the plan flown "
-            "first). The hypothesis nearest the expert (an oracle choice, a diagnostic only): MSE "
+            f"The policy has {m} hypotheses; the rows above are the plan flown first (the most confident, or "
+            "plan 0 with hypotheses_first: mean). The hypothesis nearest the expert (an oracle choice, a "
+            "diagnostic only): MSE "
             f"{_fmt(s['mean'])} ± {_fmt(s['ci95_half_width'])} m^2 (median {_fmt(s['median'])}).",
         ]
     lines += [
