@@ -451,6 +451,11 @@ def test_depth_grid_config_is_checked_with_a_clear_message() -> None:
 
 
 # ---------------------------------------------------------------------------------------- multiple hypotheses
+def local_cfg(**kw: object) -> ModelConfig:
+    """A small local-frame model configuration (32 x 32 input) with the given extra keys."""
+    return ModelConfig(input_height=32, input_width=32, state_frame="local", output_frame="local", **kw)
+
+
 def test_hypotheses_head_gives_m_plans_and_m_logits() -> None:
     net = PolicyNet("small", out_dim=30, hypotheses=3)
     assert count_parameters(net.head) == 128 * 93 + 93  # 3 plans of 30 values + 3 logits
@@ -462,11 +467,7 @@ def test_hypotheses_head_gives_m_plans_and_m_logits() -> None:
 
 
 def test_select_flies_the_plan_with_the_largest_logit_first_on_ties() -> None:
-    policy = build_policy(
-        ModelConfig(input_height=32, input_width=32, state_frame="local", output_frame="local", hypotheses=3),
-        10,
-        2.0,
-    )
+    policy = build_policy(local_cfg(hypotheses=3), 10, 2.0)
     d = policy.plan_dim
     plans = torch.arange(3 * d, dtype=torch.float32).reshape(1, 3, d).repeat(3, 1, 1)
     logits = torch.tensor([[0.1, 2.0, -1.0], [5.0, 5.0, 0.0], [-3.0, -2.0, -1.0]])
@@ -490,15 +491,7 @@ def test_select_flies_the_plan_with_the_largest_logit_first_on_ties() -> None:
 
 
 def test_mean_first_flies_plan_0_whatever_the_logits() -> None:
-    cfg = ModelConfig(
-        input_height=32,
-        input_width=32,
-        state_frame="local",
-        output_frame="local",
-        hypotheses=3,
-        hypotheses_first="mean",
-    )
-    policy = build_policy(cfg, 10, 2.0)
+    policy = build_policy(local_cfg(hypotheses=3, hypotheses_first="mean"), 10, 2.0)
     d = policy.plan_dim
     y = torch.cat(
         [torch.arange(3 * d, dtype=torch.float32).reshape(1, -1), torch.tensor([[-5.0, 9.0, 1.0]])], 1
@@ -511,15 +504,7 @@ def test_mean_first_flies_plan_0_whatever_the_logits() -> None:
 
 
 def test_prior_is_added_to_every_hypothesis_and_not_to_the_logits() -> None:
-    cfg = ModelConfig(
-        input_height=32,
-        input_width=32,
-        state_frame="local",
-        output_frame="local",
-        output_prior="constant_velocity",
-        hypotheses=2,
-    )
-    policy = build_policy(cfg, 10, 2.0).eval()
+    policy = build_policy(local_cfg(output_prior="constant_velocity", hypotheses=2), 10, 2.0).eval()
     with torch.no_grad():
         policy.net.head.weight.zero_()
         policy.net.head.bias.zero_()
