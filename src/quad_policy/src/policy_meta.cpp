@@ -81,7 +81,8 @@ class MetaReader {
     const std::string key = dot == std::string::npos ? path : path.substr(dot + 1);
     if (!parent.IsMap() || !parent[key]) return fallback;
     const YAML::Node n = parent[key];
-    const std::string range = "must be an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) + "]";
+    const std::string range =
+        "must be an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) + "]";
     // Only what JSON calls an integer: not booleans, fractions or strings (a quoted scalar has the tag "!").
     if (!n.IsScalar() || n.Tag() == "!" || n.Scalar().empty() ||
         n.Scalar().find_first_not_of("-0123456789") != std::string::npos) {

@@ -118,7 +118,8 @@ TorchPolicy::TorchPolicy(const std::string& path) : impl_(std::make_unique<Impl>
         impl_->module.hasattr("num_hypotheses") ? impl_->module.attr("num_hypotheses").toInt() : 1;
     if (file_hypotheses != m.hypotheses) {
       throw PolicyFormatError(path + ": attribute num_hypotheses = " + std::to_string(file_hypotheses) +
-                              " disagrees with the metadata's output.hypotheses " + std::to_string(m.hypotheses));
+                              " disagrees with the metadata's output.hypotheses " +
+                              std::to_string(m.hypotheses));
     }
     const bool file_mean_first =
         impl_->module.hasattr("mean_first") && impl_->module.attr("mean_first").toBool();

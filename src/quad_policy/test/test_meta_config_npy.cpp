@@ -127,12 +127,14 @@ TEST(PolicyMeta, HypothesesAreOptionalBoundedAndSetTheNetworkOutputWidth) {
   EXPECT_TRUE(ParsePolicyMeta(mean, "p.ts").mean_first);
   std::string best = with("3");
   best.replace(best.find(three_key), three_key.size(), three_key + ", \"hypotheses_first\": \"best\"");
-  EXPECT_NE(ErrorOf([&] { ParsePolicyMeta(best, "p.ts"); })
-                .find("'output.hypotheses_first' must be 'confidence' or 'mean', got 'best'"),
+  EXPECT_NE(ErrorOf([&] {
+              ParsePolicyMeta(best, "p.ts");
+            }).find("'output.hypotheses_first' must be 'confidence' or 'mean', got 'best'"),
             std::string::npos);
   for (const std::string bad : {"0", "9", "2.5", "true", "\"3\""}) {
-    EXPECT_NE(ErrorOf([&] { ParsePolicyMeta(with(bad), "p.ts"); })
-                  .find("p.ts: policy metadata key 'output.hypotheses' must be an integer in [1, 8]"),
+    EXPECT_NE(ErrorOf([&] {
+                ParsePolicyMeta(with(bad), "p.ts");
+              }).find("p.ts: policy metadata key 'output.hypotheses' must be an integer in [1, 8]"),
               std::string::npos)
         << bad;
   }

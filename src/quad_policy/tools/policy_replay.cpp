@@ -17,9 +17,9 @@
 // 4 control points in final_ctrl.npy and knot interval in final_knot_dt.npy, zeros: none). Turning in place
 // (recovery.turn_after_stops) writes turn_rate_radps.npy (0: not turning) and stop_yaw.npy (the stopping
 // trajectory's 4 yaw control points; zeros: none). With several hypotheses (model.hypotheses), y.npy holds
-// the whole network output, proposed_hypothesis.npy the index of the plan proposed and recovery_hypothesis.npy
-// that of the recovery's plan (-1: not recovered); file_decode.npy decodes the file's own `select`. The frames
-// are decided in order by one decider, as a node decides an episode.
+// the whole network output, proposed_hypothesis.npy the index of the plan proposed and
+// recovery_hypothesis.npy that of the recovery's plan (-1: not recovered); file_decode.npy decodes the file's
+// own `select`. The frames are decided in order by one decider, as a node decides an episode.
 //
 // Exit status: 0 done, 1 bad input (message on stderr), 2 usage.
 #include <filesystem>
