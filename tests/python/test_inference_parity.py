@@ -62,7 +62,11 @@ def _replay(
     cmd += ["--out", str(out)] + (["--trajectories", str(trajectories)] if trajectories else [])
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
-    return {p.stem: np.load(p) for p in out.glob("*.npy")}
+    outputs = {p.stem: np.load(p) for p in out.glob("*.npy")}
+    prefix = "[policy_replay] frame "
+    reasons = [line.split(": ", 1)[1] for line in proc.stderr.splitlines() if line.startswith(prefix)]
+    outputs["reason"] = np.array(reasons, dtype=object)  # the safety verdict's words, per frame
+    return outputs
 
 
 def _decide_all(decider: PolicyDecider, fx: DecisionFixture) -> list:
@@ -493,6 +497,52 @@ def test_turning_in_place_turns_alike_in_both_deciders(tmp_path: Path) -> None:
     np.testing.assert_allclose(end, p - 0.8 * ahead, atol=1e-6)  # the depth frame is float32
     # The heading starts at the vehicle's.
     assert py[2].stop.yaw_ctrl[1] == pytest.approx(yaw, abs=1e-12)
+
+
+def test_the_depth_memory_refuses_alike_in_both_deciders_what_only_an_earlier_frame_saw(
+    tmp_path: Path,
+) -> None:
+    """The vehicle hovers at the origin; the goal is 10 m along +x, and the goal-seeking double flies straight
+    at it. Frame 0 faces +x and sees a wall 1.2 m ahead (refused). Then the vehicle has turned to face +y
+    and sees nothing: its plan along +x is out of view, so without memory it is accepted; with memory
+    (spacing 0.2 s: frames 0 and 2 are kept) the frame that saw the wall refuses it, in both languages, with
+    the same words (naming the remembered frame)."""
+    policy_path = export_goal_line_policy(tmp_path / "goal_line.ts")
+    n = 4
+    depth = np.full((n, H, W), np.inf, np.float32)
+    depth[0][:] = 1.2
+    left = np.array([0.0, 0.0, np.sin(np.pi / 4), np.cos(np.pi / 4)])
+    results = {}
+    for frames in (0, 2):
+        fx, config = _hover_scene(
+            tmp_path / f"mem{frames}",
+            depth,
+            np.array([0.0, 0.0, 1.5]),
+            np.array([0.0, 0.0, 0.0, 1.0]),
+            np.tile([10.0, 0.0, 1.5], (n, 1)),
+            {"memory_frames: 0": f"memory_frames: {frames}"},
+        )
+        fx = dataclasses.replace(
+            fx, q_world_body=np.vstack([[0.0, 0.0, 0.0, 1.0], np.tile(left, (n - 1, 1))])
+        )
+        write_fixture(tmp_path / f"mem{frames}" / "fx", fx)
+        cfg = load_policy_config(config)
+        cpp = _replay(
+            policy_path, tmp_path / f"mem{frames}" / "fx", config, tmp_path / f"mem{frames}" / "cpp"
+        )
+        decider = PolicyDecider(LoadedPolicy(policy_path), cfg.safety, cfg.refusal, cfg.recovery)
+        py = _decide_all(decider, fx)
+        np.testing.assert_array_equal(cpp["sent_kind"], _sent_kinds(py))
+        np.testing.assert_array_equal(cpp["verdict"], [int(d.safety.verdict) for d in py])
+        assert list(cpp["reason"]) == [d.safety.reason for d in py]
+        assert [f.stamp_s for f in decider.memory.frames] == ([1.2, 1.0] if frames else [])
+        results[frames] = py
+    assert _sent_kinds(results[0]) == [2, 1, 1, 1]
+    assert _sent_kinds(results[2]) == [2, 2, 2, 2]
+    reasons = [d.safety.reason for d in results[2]]
+    assert "remembered" not in reasons[0]
+    assert all("of the remembered frame 1 (t = 1.000 s)" in r for r in reasons[1:3]), reasons
+    assert "of the remembered frame 2 (t = 1.000 s)" in reasons[3], reasons
 
 
 def test_bspline_messages_carry_the_heading_only_when_the_trajectory_has_one() -> None:

@@ -1,6 +1,7 @@
 """The Python safety layer (quad_il.inference.safety): one test per refusal reason, a safe plan accepted, the
-radius as margin, and the depth test against a brute-force scan of every pixel. The C++ twin has the same
-cases (src/quad_policy/test/test_safety.cpp); test_inference_parity.py holds the two to each other."""
+radius as margin, the depth test against a brute-force scan of every pixel, and the depth memory. The C++
+twin has the same cases (src/quad_policy/test/test_safety.cpp); test_inference_parity.py holds the two to
+each other."""
 
 from __future__ import annotations
 
@@ -10,11 +11,14 @@ import pytest
 from quad_il.inference.config import SafetyConfig
 from quad_il.inference.safety import (
     CameraModel,
+    DepthFrame,
+    DepthMemory,
     SafetyVerdict,
     VerdictCounts,
     check_trajectory,
     find_depth_collision,
     safety_sample_times,
+    trajectory_in_view,
 )
 from quad_il.inference.trajectory import UniformBspline
 
@@ -54,6 +58,8 @@ def cfg(**kw: object) -> SafetyConfig:
         sample_dt_s=0.05,
         check_horizon_s=0.0,
         collision_min_pixels=1,
+        memory_frames=0,
+        memory_spacing_s=0.2,
     )
     base.update(kw)
     return SafetyConfig(**base)
@@ -179,3 +185,107 @@ def test_verdict_counts_sum_the_refusals() -> None:
 def test_depth_and_camera_sizes_must_agree() -> None:
     with pytest.raises(ValueError, match="depth image"):
         find_depth_collision(np.zeros((1, 3)), 0.25, 1, np.zeros((10, 10), np.float32), camera())
+
+
+def test_depth_and_camera_sizes_must_agree_for_remembered_frames_too() -> None:
+    bad = DepthFrame(1.0, np.zeros((10, 10), np.float32), camera())
+    with pytest.raises(ValueError, match="remembered frame 1: depth image"):
+        find_depth_collision(np.zeros((1, 3)), 0.25, 1, uniform(np.inf), camera(), [bad])
+    with pytest.raises(ValueError, match="latest frame: depth image"):
+        find_depth_collision(np.zeros((1, 3)), 0.25, 1, np.zeros((10, 10), np.float32), camera())
+
+
+def yawed_camera(yaw_deg: float, position: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> CameraModel:
+    """The default camera turned by yaw_deg about world z (left positive) and moved to position."""
+    a = np.radians(yaw_deg)
+    Rz = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    T = np.eye(4)
+    T[:3, :3] = Rz @ np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], dtype=np.float64)
+    T[:3, 3] = position
+    return camera(T)
+
+
+def test_a_remembered_frame_judges_samples_the_latest_frame_does_not_show() -> None:
+    # Frame at t = 1 s looked along +x and saw a wall 3 m ahead; now the camera looks along +y (yawed 90 deg
+    # left) into free space, so the plan along +x leaves the latest view at once.
+    wall_ahead = DepthFrame(1.0, uniform(3.0), camera())
+    latest = yawed_camera(90.0)
+    free = uniform(np.inf)
+    c = cfg()
+    assert check_trajectory(line(2.0), VEHICLE, free, latest, c).accepted  # no memory: not judged
+    r = check_trajectory(line(2.0), VEHICLE, free, latest, c, [wall_ahead])
+    assert r.verdict == SafetyVerdict.COLLISION_IN_DEPTH, r.reason
+    assert r.value == pytest.approx(1.45, abs=1e-9)  # the same sample as with the wall in the latest frame
+    assert "of the remembered frame 1 (t = 1.000 s)" in r.reason
+    hit = find_depth_collision(line(2.0).position(np.array([1.45])), 0.25, 1, free, latest, [wall_ahead])
+    assert hit.collides and hit.frame == 1 and hit.frame_stamp_s == 1.0
+    # The newest frame that shows the sample judges it: a newer frame looking along +x into free space wins.
+    newer_free = DepthFrame(2.0, uniform(np.inf), camera())
+    assert check_trajectory(line(2.0), VEHICLE, free, latest, c, [newer_free, wall_ahead]).accepted
+    # A frame that does not show the samples (looking along -x) does not judge them.
+    behind = DepthFrame(2.0, uniform(0.5), yawed_camera(180.0))
+    r = check_trajectory(line(2.0), VEHICLE, free, latest, c, [behind, wall_ahead])
+    assert "remembered frame 2 (t = 1.000 s)" in r.reason
+
+
+def test_the_latest_frame_judges_what_it_shows_and_the_memory_leaves_it_alone() -> None:
+    # The latest frame looks along +x and sees the wall: refused by it, with the same words as without memory.
+    old_free = DepthFrame(1.0, uniform(np.inf), camera())
+    without = check(line(2.0), uniform(3.0))
+    with_mem = check_trajectory(line(2.0), VEHICLE, uniform(3.0), camera(), cfg(), [old_free])
+    assert with_mem == without and "remembered" not in with_mem.reason
+    # A sample inside the sphere around a remembered camera (where the vehicle was) is free in that frame.
+    wall_at_old_camera = DepthFrame(1.0, uniform(0.01), yawed_camera(0.0, (2.9, 0.0, 0.0)))
+    mem = [wall_at_old_camera]
+    near, far = np.array([[3.0, 0.0, 0.0]]), np.array([[3.5, 0.0, 0.0]])  # 0.1 m and 0.6 m before it
+    assert not find_depth_collision(near, 0.25, 1, uniform(np.inf), yawed_camera(90.0), mem).collides
+    assert find_depth_collision(far, 0.25, 1, uniform(np.inf), yawed_camera(90.0), mem).frame == 1
+
+
+def test_trajectory_in_view_counts_samples_a_remembered_frame_shows() -> None:
+    c = cfg()
+    latest = yawed_camera(90.0)
+    assert not trajectory_in_view(line(2.0), latest, c)
+    assert trajectory_in_view(line(2.0), latest, c, [DepthFrame(1.0, uniform(np.inf), camera())])
+    assert not trajectory_in_view(
+        line(2.0), latest, c, [DepthFrame(1.0, uniform(np.inf), yawed_camera(180.0))]
+    )
+
+
+def test_depth_memory_keeps_frames_spaced_newest_first_and_forgets_when_time_goes_back() -> None:
+    m = DepthMemory(3, 0.2)
+    d = uniform(5.0)
+    assert m.add(1.0, d, camera())
+    assert not m.add(1.1, d, camera())  # too soon after the newest kept
+    assert m.add(1.2, d, camera()) and m.add(1.45, d, camera()) and m.add(1.7, d, camera())
+    assert [f.stamp_s for f in m.frames] == [1.7, 1.45, 1.2]  # at most 3, the oldest dropped
+    d[0, 0] = 1.0
+    assert m.frames[0].depth_m[0, 0] == 5.0  # a copy, not the caller's buffer
+    assert m.add(0.5, d, camera())  # time went back (a new episode): the memory starts again
+    assert [f.stamp_s for f in m.frames] == [0.5]
+    m.clear()
+    assert m.frames == []
+    off = DepthMemory(0, 0.2)
+    assert not off.add(1.0, d, camera()) and off.frames == []
+
+
+def test_bad_depth_memory_settings_are_refused_with_their_names() -> None:
+    with pytest.raises(ValueError, match="memory_frames must be >= 0"):
+        DepthMemory(-1, 0.2)
+    with pytest.raises(ValueError, match="memory_spacing_s finite"):
+        DepthMemory(2, float("nan"))
+    with pytest.raises(ValueError, match="memory_frames"):
+        cfg(memory_frames=65)
+    with pytest.raises(ValueError, match="memory_spacing_s"):
+        cfg(memory_spacing_s=-0.1)
+    with pytest.raises(ValueError, match="memory_frames"):
+        SafetyConfig(
+            enabled=True,
+            max_vel_mps=5.0,
+            max_acc_mps2=10.0,
+            max_start_error_m=1.0,
+            vehicle_radius_m=0.25,
+            sample_dt_s=0.05,
+            check_horizon_s=0.0,
+            collision_min_pixels=1,
+        )  # required: a config written before the memory existed names the missing key

@@ -49,6 +49,8 @@ PolicyNodeConfig Load(quad_common::StrictYaml y) {
   c.safety.sample_dt_s = y.Get<double>("safety.sample_dt_s", Positive());
   c.safety.check_horizon_s = y.Get<double>("safety.check_horizon_s", NonNegative());
   c.safety.collision_min_pixels = y.Get<int>("safety.collision_min_pixels", AtLeast(1));
+  c.safety.memory_frames = y.Get<int>("safety.memory_frames", quad_common::InRange(0, 64));
+  c.safety.memory_spacing_s = y.Get<double>("safety.memory_spacing_s", NonNegative());
   try {
     ValidateRecoveryConfig(c.recovery, c.safety);
     ValidateTurning(c.recovery, c.refusal);

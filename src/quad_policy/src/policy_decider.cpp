@@ -132,9 +132,15 @@ PolicyDecider::PolicyDecider(std::shared_ptr<const TorchPolicy> policy, const Sa
   ValidateRefusal(refusal_);
   ValidateRecoveryConfig(recovery_, safety_);
   ValidateTurning(recovery_, refusal_);
+  memory_ = DepthMemory(safety_.memory_frames, safety_.memory_spacing_s);
 }
 
 void PolicyDecider::Reset() {
+  EndStops();
+  memory_.Clear();
+}
+
+void PolicyDecider::EndStops() {
   stops_in_row_ = 0;
   turn_sign_ = 0;
 }
@@ -162,12 +168,14 @@ Decision PolicyDecider::Decide(const DecisionInputs& in) {
   d.timings.decode_ms = MsSince(t0);
 
   t0 = std::chrono::steady_clock::now();
-  d.safety = CheckTrajectory(d.proposed, in.state.p_world_body, &in.depth, in.camera, safety_);
+  const std::vector<DepthFrame>& mem = memory_.frames();  // earlier frames; this one is added at the end
+  d.safety = CheckTrajectory(d.proposed, in.state.p_world_body, &in.depth, in.camera, safety_, mem);
   if ((in.goal_world - in.state.p_world_body).norm() < recovery_.final_approach_m) {  // 0: off
     std::optional<UniformBspline> traj =
         FinalApproach(in.state.p_world_body, in.state.v_world, in.goal_world,
                       recovery_.final_approach_acc_mps2, refusal_.stop_min_duration_s, in.stamp_s);
-    if (traj && CheckTrajectory(*traj, in.state.p_world_body, &in.depth, in.camera, safety_).accepted()) {
+    if (traj &&
+        CheckTrajectory(*traj, in.state.p_world_body, &in.depth, in.camera, safety_, mem).accepted()) {
       d.final_approach = std::move(traj);
     }
   }
@@ -181,7 +189,7 @@ Decision PolicyDecider::Decide(const DecisionInputs& in) {
   steer.vehicle_radius_m = recovery_.steer_clearance_m;
   const bool steering =
       d.accepted() && recovery_.steer_clearance_m > 0.0 &&
-      !CheckTrajectory(d.proposed, in.state.p_world_body, &in.depth, in.camera, steer).accepted();
+      !CheckTrajectory(d.proposed, in.state.p_world_body, &in.depth, in.camera, steer, mem).accepted();
   if (!d.final_approach && (!d.accepted() || steering)) {
     // Yaw 0 (never a configured turn: those are non-zero) stands for the goal itself.
     std::vector<double> yaws{0.0};
@@ -198,10 +206,10 @@ Decision PolicyDecider::Decide(const DecisionInputs& in) {
       }
       for (const HypothesisPlan& plan : alternatives) {
         UniformBspline traj = PolicyTrajectory(decoder_.Decode(plan.y, in.state), meta, in.stamp_s);
-        if (CheckTrajectory(traj, in.state.p_world_body, &in.depth, in.camera, safety_).accepted() &&
+        if (CheckTrajectory(traj, in.state.p_world_body, &in.depth, in.camera, safety_, mem).accepted() &&
             (!steering ||
-             CheckTrajectory(traj, in.state.p_world_body, &in.depth, in.camera, steer).accepted()) &&
-            TrajectoryInView(traj, in.camera, safety_)) {
+             CheckTrajectory(traj, in.state.p_world_body, &in.depth, in.camera, steer, mem).accepted()) &&
+            TrajectoryInView(traj, in.camera, safety_, mem)) {
           d.recovery = std::move(traj);
           d.recovery_yaw_deg = yaw;
           d.recovery_hypothesis = plan.index;
@@ -234,8 +242,9 @@ Decision PolicyDecider::Decide(const DecisionInputs& in) {
                                  refusal_.stop_min_duration_s, in.stamp_s);
     }
   } else {
-    Reset();
+    EndStops();
   }
+  memory_.Add(in.stamp_s, in.depth, in.camera);
   d.timings.safety_ms = MsSince(t0);
   counts_.Add(d.safety.verdict);
   return d;

@@ -6,6 +6,7 @@
 #include <limits>
 #include <stdexcept>
 #include <string>
+#include <utility>
 
 namespace quad_policy {
 
@@ -52,6 +53,45 @@ void ValidateSafetyConfig(const SafetyConfig& cfg) {
     throw std::invalid_argument("safety.collision_min_pixels must be >= 1, got " +
                                 std::to_string(cfg.collision_min_pixels));
   }
+  if (cfg.memory_frames < 0 || cfg.memory_frames > 64) {
+    throw std::invalid_argument("safety.memory_frames must be in [0, 64], got " +
+                                std::to_string(cfg.memory_frames));
+  }
+  if (!(std::isfinite(cfg.memory_spacing_s) && cfg.memory_spacing_s >= 0.0)) {
+    throw std::invalid_argument("safety.memory_spacing_s must be >= 0, got " +
+                                std::to_string(cfg.memory_spacing_s));
+  }
+}
+
+DepthMemory::DepthMemory(int max_frames, double spacing_s) : max_frames_(max_frames), spacing_s_(spacing_s) {
+  if (max_frames < 0 || !(std::isfinite(spacing_s) && spacing_s >= 0.0)) {
+    throw std::invalid_argument(
+        "depth memory: memory_frames must be >= 0 and memory_spacing_s finite and >= 0, got " +
+        std::to_string(max_frames) + " and " + std::to_string(spacing_s));
+  }
+}
+
+bool DepthMemory::Add(double stamp_s, const DepthImageView& depth, const CameraModel& camera) {
+  if (max_frames_ == 0) return false;
+  if (depth.data == nullptr || depth.width <= 0 || depth.height <= 0) {
+    throw std::invalid_argument("depth memory: the frame to keep has no pixels");
+  }
+  if (!frames_.empty() && stamp_s < frames_.front().stamp_s) frames_.clear();  // time went back
+  if (!frames_.empty() && stamp_s - frames_.front().stamp_s < spacing_s_ - 1e-9) return false;
+  DepthFrame frame;
+  frame.stamp_s = stamp_s;
+  frame.camera = camera;
+  frame.image.width = depth.width;
+  frame.image.height = depth.height;
+  frame.image.data_m.resize(static_cast<std::size_t>(depth.width) * depth.height);
+  for (int v = 0; v < depth.height; ++v) {
+    const float* row = depth.data + static_cast<std::size_t>(v) * depth.row_stride;
+    std::copy(row, row + depth.width,
+              frame.image.data_m.begin() + static_cast<std::ptrdiff_t>(v) * depth.width);
+  }
+  if (static_cast<int>(frames_.size()) >= max_frames_) frames_.resize(max_frames_ - 1);
+  frames_.insert(frames_.begin(), std::move(frame));
+  return true;
 }
 
 namespace {
@@ -89,30 +129,85 @@ std::string Printf(const char* fmt, Args... args) {
 
 }  // namespace
 
-DepthCollision FindDepthCollision(const std::vector<Eigen::Vector3d>& samples_world, double radius_m,
-                                  int min_pixels, const DepthImageView& depth, const CameraModel& camera) {
+namespace {
+
+void CheckFrame(const DepthImageView& depth, const CameraModel& camera, const std::string& what) {
   if (depth.data == nullptr || depth.width != camera.width || depth.height != camera.height) {
-    throw std::invalid_argument("depth image and camera model sizes differ");
+    throw std::invalid_argument(what + ": depth image and camera model sizes differ");
   }
-  if (!(camera.fx > 0.0 && camera.fy > 0.0)) throw std::invalid_argument("camera focal lengths must be > 0");
-  std::vector<double> dx(camera.width), dy(camera.height);
-  for (int u = 0; u < camera.width; ++u) dx[u] = (u - camera.cx) / camera.fx;
-  for (int v = 0; v < camera.height; ++v) dy[v] = (v - camera.cy) / camera.fy;
-  const Eigen::Isometry3d T_camera_world = camera.T_world_camera.inverse();
+  if (!(camera.fx > 0.0 && camera.fy > 0.0)) {
+    throw std::invalid_argument(what + ": camera focal lengths must be > 0");
+  }
+}
+
+// Whether a point (camera frame) is in front of the camera and projects inside the image.
+bool CentreInView(const Eigen::Vector3d& c, const CameraModel& camera) {
+  if (!(c.z() > 0.0)) return false;
+  const double u = camera.cx + camera.fx * c.x() / c.z();
+  const double v = camera.cy + camera.fy * c.y() / c.z();
+  return u >= 0.0 && u <= camera.width - 1.0 && v >= 0.0 && v <= camera.height - 1.0;
+}
+
+}  // namespace
+
+DepthCollision FindDepthCollision(const std::vector<Eigen::Vector3d>& samples_world, double radius_m,
+                                  int min_pixels, const DepthImageView& depth, const CameraModel& camera,
+                                  const std::vector<DepthFrame>& memory) {
+  // Frame 0 is the latest, k >= 1 the k-th remembered (newest first).
+  const int n_frames = 1 + static_cast<int>(memory.size());
+  std::vector<DepthImageView> depths;
+  std::vector<const CameraModel*> cameras;
+  depths.reserve(n_frames);
+  cameras.reserve(n_frames);
+  CheckFrame(depth, camera, "latest frame");
+  depths.push_back(depth);
+  cameras.push_back(&camera);
+  for (std::size_t k = 0; k < memory.size(); ++k) {
+    depths.push_back(memory[k].image.view());
+    cameras.push_back(&memory[k].camera);
+    CheckFrame(depths.back(), memory[k].camera, "remembered frame " + std::to_string(k + 1));
+  }
+  std::vector<Eigen::Isometry3d> T_camera_world(n_frames);
+  for (int k = 0; k < n_frames; ++k) T_camera_world[k] = cameras[k]->T_world_camera.inverse();
+  std::vector<std::vector<double>> dxs(n_frames), dys(n_frames);  // per frame, filled when first used
   const double r2 = radius_m * radius_m;
   DepthCollision out;
   for (std::size_t j = 0; j < samples_world.size(); ++j) {
-    const Eigen::Vector3d c = T_camera_world * samples_world[j];
+    const Eigen::Vector3d c_latest = T_camera_world[0] * samples_world[j];
+    if (c_latest.squaredNorm() <= r2)
+      continue;  // the sphere holds the latest camera: the vehicle's own place
+    // The judging frame: the latest when it shows the sample's centre, else the newest remembered frame that
+    // does, else the latest (which judges the part of the sphere it sees).
+    int k = 0;
+    if (!memory.empty() && !CentreInView(c_latest, camera)) {
+      for (int m = 1; m < n_frames; ++m) {
+        if (CentreInView(T_camera_world[m] * samples_world[j], *cameras[m])) {
+          k = m;
+          break;
+        }
+      }
+    }
+    const CameraModel& cam = *cameras[k];
+    const DepthImageView& img = depths[k];
+    const Eigen::Vector3d c = k == 0 ? c_latest : Eigen::Vector3d(T_camera_world[k] * samples_world[j]);
     const double c2 = c.squaredNorm();
-    if (c2 <= r2) continue;  // the sphere holds the camera: the vehicle's own place, not judged
+    if (c2 <= r2) continue;  // the sphere holds that frame's camera: where the vehicle was, free
     int u0, u1, v0, v1;
-    if (!AxisRange(c.x(), c.z(), radius_m, camera.fx, camera.cx, camera.width, &u0, &u1)) continue;
-    if (!AxisRange(c.y(), c.z(), radius_m, camera.fy, camera.cy, camera.height, &v0, &v1)) continue;
+    if (!AxisRange(c.x(), c.z(), radius_m, cam.fx, cam.cx, cam.width, &u0, &u1)) continue;
+    if (!AxisRange(c.y(), c.z(), radius_m, cam.fy, cam.cy, cam.height, &v0, &v1)) continue;
+    std::vector<double>& dx = dxs[k];
+    std::vector<double>& dy = dys[k];
+    if (dx.empty()) {
+      dx.resize(cam.width);
+      dy.resize(cam.height);
+      for (int u = 0; u < cam.width; ++u) dx[u] = (u - cam.cx) / cam.fx;
+      for (int v = 0; v < cam.height; ++v) dy[v] = (v - cam.cy) / cam.fy;
+    }
     int count = 0;
     DepthCollision hit;
     for (int v = v0; v <= v1; ++v) {
       for (int u = u0; u <= u1; ++u) {
-        double d = depth.at(v, u);
+        double d = img.at(v, u);
         if (std::isnan(d) || d == std::numeric_limits<double>::infinity()) continue;
         if (d < 0.0) d = 0.0;  // -inf: nearer than the camera's minimum range
         // Ray t (dx, dy, 1), t = depth along the optical axis: |t dir - c|^2 = r^2.
@@ -136,6 +231,8 @@ DepthCollision FindDepthCollision(const std::vector<Eigen::Vector3d>& samples_wo
       hit.collides = true;
       hit.sample_index = static_cast<int>(j);
       hit.occupied_pixels = count;
+      hit.frame = k;
+      if (k > 0) hit.frame_stamp_s = memory[k - 1].stamp_s;
       return hit;
     }
   }
@@ -154,23 +251,30 @@ std::vector<double> SafetySampleTimes(const UniformBspline& traj, const SafetyCo
   return times;
 }
 
-bool TrajectoryInView(const UniformBspline& traj, const CameraModel& camera, const SafetyConfig& cfg) {
+bool TrajectoryInView(const UniformBspline& traj, const CameraModel& camera, const SafetyConfig& cfg,
+                      const std::vector<DepthFrame>& memory) {
   const Eigen::Isometry3d T_camera_world = camera.T_world_camera.inverse();
+  std::vector<Eigen::Isometry3d> T_remembered;
+  T_remembered.reserve(memory.size());
+  for (const DepthFrame& f : memory) T_remembered.push_back(f.camera.T_world_camera.inverse());
   const double r2 = cfg.vehicle_radius_m * cfg.vehicle_radius_m;
   for (double t : SafetySampleTimes(traj, cfg)) {
-    const Eigen::Vector3d c = T_camera_world * traj.Position(t);
+    const Eigen::Vector3d p = traj.Position(t);
+    const Eigen::Vector3d c = T_camera_world * p;
     if (c.squaredNorm() <= r2) continue;  // the vehicle's own place, as in FindDepthCollision
-    if (!(c.z() > 0.0)) return false;
-    const double u = camera.cx + camera.fx * c.x() / c.z();
-    const double v = camera.cy + camera.fy * c.y() / c.z();
-    if (!(u >= 0.0 && u <= camera.width - 1.0 && v >= 0.0 && v <= camera.height - 1.0)) return false;
+    if (CentreInView(c, camera)) continue;
+    bool shown = false;
+    for (std::size_t k = 0; k < memory.size() && !shown; ++k) {
+      shown = CentreInView(T_remembered[k] * p, memory[k].camera);
+    }
+    if (!shown) return false;
   }
   return true;
 }
 
 SafetyResult CheckTrajectory(const UniformBspline& traj, const Eigen::Vector3d& p_world_vehicle,
-                             const DepthImageView* depth, const CameraModel& camera,
-                             const SafetyConfig& cfg) {
+                             const DepthImageView* depth, const CameraModel& camera, const SafetyConfig& cfg,
+                             const std::vector<DepthFrame>& memory) {
   SafetyResult res;
   for (int i = 0; i < traj.ctrl_world.rows(); ++i) {
     if (!traj.ctrl_world.row(i).allFinite()) {
@@ -236,15 +340,18 @@ SafetyResult CheckTrajectory(const UniformBspline& traj, const Eigen::Vector3d& 
     samples.reserve(times.size());
     for (double t : times) samples.push_back(traj.Position(t));
     const DepthCollision hit =
-        FindDepthCollision(samples, cfg.vehicle_radius_m, cfg.collision_min_pixels, *depth, camera);
+        FindDepthCollision(samples, cfg.vehicle_radius_m, cfg.collision_min_pixels, *depth, camera, memory);
     if (hit.collides) {
       res.verdict = SafetyVerdict::kCollisionInDepth;
       res.value = times[hit.sample_index];
+      const std::string where =
+          hit.frame == 0 ? std::string()
+                         : Printf(" of the remembered frame %d (t = %.3f s)", hit.frame, hit.frame_stamp_s);
       res.reason = Printf(
           "collision_in_depth: at t = %.3f s the vehicle sphere (r = %.2f m) reaches %.3f m deep along "
-          "pixel (%d, %d) whose measured depth is %.3f m (%d occupied pixels)",
-          res.value, cfg.vehicle_radius_m, hit.sphere_depth_m, hit.u, hit.v, hit.measured_depth_m,
-          hit.occupied_pixels);
+          "pixel (%d, %d)%s whose measured depth is %.3f m (%d occupied pixels)",
+          res.value, cfg.vehicle_radius_m, hit.sphere_depth_m, hit.u, hit.v, where.c_str(),
+          hit.measured_depth_m, hit.occupied_pixels);
       return res;
     }
   }

@@ -130,7 +130,7 @@ class PolicyDecider {
   // Throws std::invalid_argument on invalid inputs (non-finite odometry or goal, empty depth). Decisions
   // depend on the ones before only through the turning's count of stops in a row (Reset() clears it).
   Decision Decide(const DecisionInputs& in);
-  // A new episode: forgets the stops in a row and the turning direction.
+  // A new episode: forgets the stops in a row, the turning direction and the depth memory.
   void Reset();
 
   const VerdictCounts& counts() const { return counts_; }
@@ -138,8 +138,10 @@ class PolicyDecider {
   const SafetyConfig& safety_config() const { return safety_; }
   const RefusalConfig& refusal_config() const { return refusal_; }
   const RecoveryConfig& recovery_config() const { return recovery_; }
+  const DepthMemory& memory() const { return memory_; }
 
  private:
+  void EndStops();
   std::shared_ptr<const TorchPolicy> policy_;
   SafetyConfig safety_;
   RefusalConfig refusal_;
@@ -148,6 +150,7 @@ class PolicyDecider {
   VerdictCounts counts_;
   int stops_in_row_ = 0;  // consecutive decisions that sent the stopping trajectory
   int turn_sign_ = 0;     // +1 left, -1 right, 0: not turning
+  DepthMemory memory_;    // earlier decision frames (SafetyConfig memory_frames), newest first
 };
 
 }  // namespace quad_policy

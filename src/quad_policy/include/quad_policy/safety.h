@@ -8,6 +8,7 @@
 #include <Eigen/Geometry>
 
 #include <array>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -38,6 +39,11 @@ struct SafetyConfig {
   double sample_dt_s = 0.05;       // spacing of the samples tested against the depth image
   double check_horizon_s = 0.0;    // samples up to this time; 0 = the whole trajectory
   int collision_min_pixels = 1;    // occupied pixels needed to call a sample colliding
+  // Depth memory (docs/inference.md, "Depth memory"): samples the latest frame does not show are judged by
+  // the newest of up to memory_frames earlier decision frames that shows them (0: the latest frame only),
+  // kept at least memory_spacing_s apart.
+  int memory_frames = 0;
+  double memory_spacing_s = 0.2;
 };
 // Throws std::invalid_argument naming the bad field.
 void ValidateSafetyConfig(const SafetyConfig& cfg);
@@ -52,6 +58,32 @@ struct CameraModel {
   double cx = 0.0;
   double cy = 0.0;
   Eigen::Isometry3d T_world_camera = Eigen::Isometry3d::Identity();  // camera optical frame (z forward)
+};
+
+// An earlier depth frame the safety layer remembers: its stamp, a copy of its image and its camera.
+struct DepthFrame {
+  double stamp_s = 0.0;
+  DepthImage image;
+  CameraModel camera;
+};
+
+// The remembered frames (SafetyConfig memory_frames, memory_spacing_s): after each decision its frame is kept
+// when the newest kept one is at least memory_spacing_s older; at most memory_frames are kept, the oldest
+// dropped. A frame older than the newest kept (time went back: a new episode, a replayed bag) empties it
+// first. The Python DepthMemory.
+class DepthMemory {
+ public:
+  DepthMemory() = default;
+  DepthMemory(int max_frames, double spacing_s);  // throws std::invalid_argument on bad values
+  void Clear() { frames_.clear(); }
+  // Keeps a copy of the frame if it is due; whether it was kept.
+  bool Add(double stamp_s, const DepthImageView& depth, const CameraModel& camera);
+  const std::vector<DepthFrame>& frames() const { return frames_; }  // newest first
+
+ private:
+  int max_frames_ = 0;
+  double spacing_s_ = 0.0;
+  std::vector<DepthFrame> frames_;
 };
 
 struct SafetyResult {
@@ -78,9 +110,15 @@ struct DepthCollision {
   int v = -1;
   double measured_depth_m = 0.0;
   double sphere_depth_m = 0.0;  // t_far of that pixel
+  int frame = 0;                // the frame that judged it: 0 the latest, k >= 1 the k-th remembered
+  double frame_stamp_s = std::numeric_limits<double>::quiet_NaN();  // that remembered frame's stamp
 };
+// With a memory (newest first), a sample whose sphere does not hold the latest camera centre is judged by
+// the latest frame when its centre is in that frame's view, else by the newest remembered frame whose view
+// holds it, else by the latest frame (which judges the part of the sphere it sees).
 DepthCollision FindDepthCollision(const std::vector<Eigen::Vector3d>& samples_world, double radius_m,
-                                  int min_pixels, const DepthImageView& depth, const CameraModel& camera);
+                                  int min_pixels, const DepthImageView& depth, const CameraModel& camera,
+                                  const std::vector<DepthFrame>& memory = {});
 
 // Sample times j * sample_dt_s (j = 0, 1, ...) up to the check horizon, and the last time itself.
 std::vector<double> SafetySampleTimes(const UniformBspline& traj, const SafetyConfig& cfg);
@@ -88,13 +126,16 @@ std::vector<double> SafetySampleTimes(const UniformBspline& traj, const SafetyCo
 // All checks in order: non-finite control points; velocity; acceleration; start far from the vehicle;
 // collision in the depth image (skipped when depth is null). The first failure is the verdict.
 SafetyResult CheckTrajectory(const UniformBspline& traj, const Eigen::Vector3d& p_world_vehicle,
-                             const DepthImageView* depth, const CameraModel& camera, const SafetyConfig& cfg);
+                             const DepthImageView* depth, const CameraModel& camera, const SafetyConfig& cfg,
+                             const std::vector<DepthFrame>& memory = {});
 
 // Whether the trajectory stays where the depth frame looked: every sample up to the check horizon (the times
 // of SafetySampleTimes) whose sphere does not hold the camera centre has its centre in front of the camera
 // and projecting inside the image. The recovery's plans must pass this besides CheckTrajectory: a plan
-// turned away from the goal may leave the field of view, where the depth check cannot judge it.
-bool TrajectoryInView(const UniformBspline& traj, const CameraModel& camera, const SafetyConfig& cfg);
+// turned away from the goal may leave the field of view, where the depth check cannot judge it. With a
+// memory, a sample a remembered frame shows counts as in view (that frame judges it).
+bool TrajectoryInView(const UniformBspline& traj, const CameraModel& camera, const SafetyConfig& cfg,
+                      const std::vector<DepthFrame>& memory = {});
 
 // The smallest depth (along the optical axis, m) among the pixels that show a surface: -inf (nearer than the
 // camera's minimum range) counts as 0, NaN and +inf show none. +inf when no pixel shows a surface.

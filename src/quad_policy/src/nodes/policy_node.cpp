@@ -281,7 +281,7 @@ class PolicyNode {
       }
       info = camera_info_;
     }
-    if (reset_decider) decider_->Reset();  // a new episode (its stops in a row start at 0)
+    if (reset_decider) decider_->Reset();  // a new episode: no stops in a row, no remembered depth frames
     if (!goal) return Skip("no_goal", "no goal for this episode yet", out);
     if (!odom) return Skip("no_odometry", "no odometry at or before the frame", out);
     if (!info) return Skip("no_camera_info", "no camera info yet", out);

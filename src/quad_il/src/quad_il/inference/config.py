@@ -37,6 +37,10 @@ class SafetyConfig(_Strict):
     sample_dt_s: float = Field(gt=0.0, allow_inf_nan=False)
     check_horizon_s: float = Field(ge=0.0, allow_inf_nan=False)
     collision_min_pixels: int = Field(ge=1)
+    # Depth memory: samples the latest frame does not show are judged by the newest of up to this many earlier
+    # decision frames that shows them (0: the latest frame only), kept at least memory_spacing_s apart.
+    memory_frames: int = Field(ge=0, le=64)
+    memory_spacing_s: float = Field(ge=0.0, allow_inf_nan=False)
 
 
 class RecoveryConfig(_Strict):

@@ -29,6 +29,7 @@ from quad_il.inference.policy import LoadedPolicy, ordered_plans
 from quad_il.inference.preprocessing import PolicyPreprocessing, as_row
 from quad_il.inference.safety import (
     CameraModel,
+    DepthMemory,
     SafetyResult,
     VerdictCounts,
     check_trajectory,
@@ -168,9 +169,14 @@ class PolicyDecider:
         self.counts = VerdictCounts()
         self.stops_in_row = 0  # consecutive decisions that sent the stopping trajectory
         self.turn_sign = 0  # +1 left, -1 right, 0: not turning
+        self.memory = DepthMemory(safety.memory_frames, safety.memory_spacing_s)
 
     def reset(self) -> None:
-        """A new episode: forgets the stops in a row and the turning direction."""
+        """A new episode: forgets the stops in a row, the turning direction and the depth memory."""
+        self._end_stops()
+        self.memory.clear()
+
+    def _end_stops(self) -> None:
         self.stops_in_row = 0
         self.turn_sign = 0
 
@@ -192,7 +198,8 @@ class PolicyDecider:
         plans = ordered_plans(y, meta)
         proposed = policy_trajectory(self.pre.decode(plans[0][1], p, q), meta, inp.stamp_s)
         t3 = time.perf_counter()
-        result = check_trajectory(proposed, inp.p_world_body, inp.depth_m, inp.camera, self.safety)
+        mem = self.memory.frames  # the earlier frames, newest first (this one is added after the decision)
+        result = check_trajectory(proposed, inp.p_world_body, inp.depth_m, inp.camera, self.safety, mem)
         final = None
         to_goal = np.asarray(inp.goal_world, np.float64).reshape(3) - np.asarray(
             inp.p_world_body, np.float64
@@ -208,7 +215,9 @@ class PolicyDecider:
             )
             if (
                 traj is not None
-                and check_trajectory(traj, inp.p_world_body, inp.depth_m, inp.camera, self.safety).accepted
+                and check_trajectory(
+                    traj, inp.p_world_body, inp.depth_m, inp.camera, self.safety, mem
+                ).accepted
             ):
                 final = traj
         recovery: UniformBspline | None = None
@@ -225,7 +234,7 @@ class PolicyDecider:
             result.accepted
             and self.recovery.steer_clearance_m > 0.0
             and not check_trajectory(
-                proposed, inp.p_world_body, inp.depth_m, inp.camera, self.steer_safety
+                proposed, inp.p_world_body, inp.depth_m, inp.camera, self.steer_safety, mem
             ).accepted
         )
         if final is None and (not result.accepted or steering):
@@ -243,15 +252,15 @@ class PolicyDecider:
                     traj = policy_trajectory(self.pre.decode(y_h, p, q), meta, inp.stamp_s)
                     if (
                         check_trajectory(
-                            traj, inp.p_world_body, inp.depth_m, inp.camera, self.safety
+                            traj, inp.p_world_body, inp.depth_m, inp.camera, self.safety, mem
                         ).accepted
                         and (
                             not steering
                             or check_trajectory(
-                                traj, inp.p_world_body, inp.depth_m, inp.camera, self.steer_safety
+                                traj, inp.p_world_body, inp.depth_m, inp.camera, self.steer_safety, mem
                             ).accepted
                         )
-                        and trajectory_in_view(traj, inp.camera, self.safety)
+                        and trajectory_in_view(traj, inp.camera, self.safety, mem)
                     ):
                         recovery, recovery_yaw, recovery_h = traj, yaw, h
                         break
@@ -295,7 +304,8 @@ class PolicyDecider:
                     inp.stamp_s,
                 )
         else:
-            self.reset()
+            self._end_stops()
+        self.memory.add(inp.stamp_s, inp.depth_m, inp.camera)
         t4 = time.perf_counter()
         self.counts.add(result.verdict)
         return Decision(

@@ -243,7 +243,7 @@ class PolicyNode:
             last_decision = self.last_decision_stamp
             reset_decider, self.reset_decider = self.reset_decider, False
         if reset_decider:
-            self.decider.reset()  # a new episode (its stops in a row start at 0)
+            self.decider.reset()  # a new episode: no stops in a row, no remembered depth frames
         if goal is None:
             return self._skip("no_goal", "no goal for this episode yet", out)
         if odom is None:

@@ -7,11 +7,17 @@ trajectory starts more than `max_start_error_m` from the vehicle; or a sample (e
 check horizon, and its end) enters space the latest depth frame shows occupied: the sphere of radius
 `vehicle_radius_m` around the sample reaches, along some pixel's ray, beyond the depth measured there (d =
 +inf and NaN are free, -inf counts as 0). Samples whose sphere holds the camera centre (the vehicle's own
-place) and samples that no ray of the image meets are not judged. docs/inference.md."""
+place) and samples that no ray of the image meets are not judged.
+
+With a depth memory (`memory_frames` > 0), a sample whose centre the latest frame does not show (beside or
+behind the camera) is judged instead by the newest remembered earlier frame that shows it: the world is
+static, so a box seen while approaching still stands there when the vehicle has turned past it.
+docs/inference.md."""
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum
 
@@ -52,6 +58,15 @@ class CameraModel:
 
 
 @dataclass(frozen=True)
+class DepthFrame:
+    """An earlier depth frame the safety layer remembers (its stamp, image and camera pose at the frame)."""
+
+    stamp_s: float
+    depth_m: NDArray[np.float32]  # (height, width) of the camera model
+    camera: CameraModel
+
+
+@dataclass(frozen=True)
 class SafetyResult:
     verdict: SafetyVerdict
     reason: str
@@ -73,6 +88,10 @@ class DepthCollision:
     v: int = -1
     measured_depth_m: float = 0.0
     sphere_depth_m: float = 0.0
+    frame: int = (
+        0  # the frame that judged the sample: 0 the latest, k >= 1 the k-th remembered (newest first)
+    )
+    frame_stamp_s: float = math.nan  # that remembered frame's stamp (NaN for the latest)
 
 
 def _axis_range(a: float, z: float, r: float, f: float, c0: float, n: int) -> tuple[int, int] | None:
@@ -93,34 +112,74 @@ def _axis_range(a: float, z: float, r: float, f: float, c0: float, n: int) -> tu
     return (lo, hi) if lo <= hi else None
 
 
+def _check_frame(depth_m: NDArray[np.float32], camera: CameraModel, what: str) -> NDArray[np.float32]:
+    depth = np.asarray(depth_m)
+    if depth.shape != (camera.height, camera.width):
+        raise ValueError(
+            f"{what}: depth image {depth.shape} and camera model ({camera.height}, {camera.width}) differ"
+        )
+    if not (camera.fx > 0.0 and camera.fy > 0.0):
+        raise ValueError(f"{what}: camera focal lengths must be > 0")
+    return depth
+
+
+def _to_camera(camera: CameraModel, points_world: FloatArray) -> FloatArray:
+    T = np.asarray(camera.T_world_camera, dtype=np.float64)
+    return (np.asarray(points_world, dtype=np.float64) - T[:3, 3]) @ T[:3, :3]  # rows: R^T (p - t)
+
+
+def _centre_in_view(c: FloatArray, camera: CameraModel) -> bool:
+    """Whether a point (camera frame) is in front of the camera and projects inside the image."""
+    cx, cy, cz = float(c[0]), float(c[1]), float(c[2])
+    if not cz > 0.0:
+        return False
+    u = camera.cx + camera.fx * cx / cz
+    v = camera.cy + camera.fy * cy / cz
+    return 0.0 <= u <= camera.width - 1.0 and 0.0 <= v <= camera.height - 1.0
+
+
+def _judging_frame(j: int, cams: list[FloatArray], cameras: list[CameraModel]) -> int:
+    """The frame that judges sample j: the latest (0) when it shows the sample's centre, else the newest
+    remembered frame that does, else the latest (which then judges the part of the sphere it sees)."""
+    for k, cam in enumerate(cameras):
+        if _centre_in_view(cams[k][j], cam):
+            return k
+    return 0
+
+
 def find_depth_collision(
     samples_world: FloatArray,
     radius_m: float,
     min_pixels: int,
     depth_m: NDArray[np.float32],
     camera: CameraModel,
+    memory: Sequence[DepthFrame] = (),
 ) -> DepthCollision:
-    """The first sample (index into samples_world, (S, 3)) with at least min_pixels occupied pixels."""
-    depth = np.asarray(depth_m)
-    if depth.shape != (camera.height, camera.width):
-        raise ValueError(
-            f"depth image {depth.shape} and camera model ({camera.height}, {camera.width}) differ"
-        )
-    if not (camera.fx > 0.0 and camera.fy > 0.0):
-        raise ValueError("camera focal lengths must be > 0")
-    T = np.asarray(camera.T_world_camera, dtype=np.float64)
-    R, t = T[:3, :3], T[:3, 3]
-    cams = (np.asarray(samples_world, dtype=np.float64) - t) @ R  # rows: R^T (p - t)
-    dx = (np.arange(camera.width, dtype=np.float64) - camera.cx) / camera.fx
-    dy = (np.arange(camera.height, dtype=np.float64) - camera.cy) / camera.fy
+    """The first sample (index into samples_world, (S, 3)) with at least min_pixels occupied pixels in the
+    frame that judges it (the latest, or with a memory (newest first) the newest frame showing it)."""
+    depths = [_check_frame(depth_m, camera, "latest frame")]
+    depths += [_check_frame(f.depth_m, f.camera, f"remembered frame {k + 1}") for k, f in enumerate(memory)]
+    cameras = [camera] + [f.camera for f in memory]
+    cams = [_to_camera(c, samples_world) for c in cameras]
+    axes: dict[int, tuple[FloatArray, FloatArray]] = {}
     r2 = radius_m * radius_m
-    for j, c in enumerate(cams):
+    for j in range(len(cams[0])):
+        if float(cams[0][j] @ cams[0][j]) <= r2:
+            continue  # the sphere holds the (latest) camera: the vehicle's own place, not judged
+        k = _judging_frame(j, cams, cameras) if memory else 0
+        cam, depth, c = cameras[k], depths[k], cams[k][j]
+        if k not in axes:
+            axes[k] = (
+                (np.arange(cam.width, dtype=np.float64) - cam.cx) / cam.fx,
+                (np.arange(cam.height, dtype=np.float64) - cam.cy) / cam.fy,
+            )
+        dx, dy = axes[k]
         cx, cy, cz = float(c[0]), float(c[1]), float(c[2])
         c2 = cx * cx + cy * cy + cz * cz
         if c2 <= r2:
-            continue  # the sphere holds the camera: the vehicle's own place, not judged
-        ur = _axis_range(cx, cz, radius_m, camera.fx, camera.cx, camera.width)
-        vr = _axis_range(cy, cz, radius_m, camera.fy, camera.cy, camera.height)
+            continue  # the sphere holds that frame's camera: where the vehicle was, free
+        ur = _axis_range(cx, cz, radius_m, cam.fx, cam.cx, cam.width)
+        vr = _axis_range(cy, cz, radius_m, cam.fy, cam.cy, cam.height)
         if ur is None or vr is None:
             continue
         (u0, u1), (v0, v1) = ur, vr
@@ -140,7 +199,15 @@ def find_depth_collision(
             first = int(np.argmax(occupied))  # row-major, as the C++ loops
             fv, fu = divmod(first, occupied.shape[1])
             return DepthCollision(
-                True, j, count, u0 + fu, v0 + fv, float(d_eff[fv, fu]), float(t_far[fv, fu])
+                True,
+                j,
+                count,
+                u0 + fu,
+                v0 + fv,
+                float(d_eff[fv, fu]),
+                float(t_far[fv, fu]),
+                k,
+                float(memory[k - 1].stamp_s) if k > 0 else math.nan,
             )
     return DepthCollision(False)
 
@@ -164,22 +231,24 @@ def safety_sample_times(traj: UniformBspline, cfg: SafetyConfig) -> FloatArray:
     return np.asarray(times, dtype=np.float64)
 
 
-def trajectory_in_view(traj: UniformBspline, camera: CameraModel, cfg: SafetyConfig) -> bool:
+def trajectory_in_view(
+    traj: UniformBspline, camera: CameraModel, cfg: SafetyConfig, memory: Sequence[DepthFrame] = ()
+) -> bool:
     """Whether every sample up to the check horizon whose sphere does not hold the camera centre has its
     centre in front of the camera and projecting inside the image (the recovery's plans must pass this
     besides check_trajectory: a plan turned away from the goal may leave the view, where depth cannot judge
+    it). With a memory, a sample shown by a remembered frame instead counts as in view (that frame judges
     it)."""
-    T = np.asarray(camera.T_world_camera, dtype=np.float64)
-    cams = (traj.position(safety_sample_times(traj, cfg)) - T[:3, 3]) @ T[:3, :3]
+    points = traj.position(safety_sample_times(traj, cfg))
+    cams = _to_camera(camera, points)
+    others = [(_to_camera(f.camera, points), f.camera) for f in memory]
     r2 = cfg.vehicle_radius_m * cfg.vehicle_radius_m
-    for cx, cy, cz in cams:
-        if cx * cx + cy * cy + cz * cz <= r2:
+    for j, c in enumerate(cams):
+        if float(c @ c) <= r2:
             continue  # the vehicle's own place, as in find_depth_collision
-        if not cz > 0.0:
-            return False
-        u = camera.cx + camera.fx * cx / cz
-        v = camera.cy + camera.fy * cy / cz
-        if not (0.0 <= u <= camera.width - 1.0 and 0.0 <= v <= camera.height - 1.0):
+        if not _centre_in_view(c, camera) and not any(
+            _centre_in_view(oc[j], oc_cam) for oc, oc_cam in others
+        ):
             return False
     return True
 
@@ -190,8 +259,10 @@ def check_trajectory(
     depth_m: NDArray[np.float32] | None,
     camera: CameraModel | None,
     cfg: SafetyConfig,
+    memory: Sequence[DepthFrame] = (),
 ) -> SafetyResult:
-    """All checks in order; the first failure is the verdict (depth None: no collision check)."""
+    """All checks in order; the first failure is the verdict (depth None: no collision check). memory: the
+    remembered earlier frames, newest first (DepthMemory.frames)."""
     ctrl = traj.ctrl_world
     bad = ~np.all(np.isfinite(ctrl), axis=1)
     if np.any(bad):
@@ -239,15 +310,20 @@ def check_trajectory(
             raise ValueError("a depth image needs its camera model")
         times = safety_sample_times(traj, cfg)
         hit = find_depth_collision(
-            traj.position(times), cfg.vehicle_radius_m, cfg.collision_min_pixels, depth_m, camera
+            traj.position(times), cfg.vehicle_radius_m, cfg.collision_min_pixels, depth_m, camera, memory
         )
         if hit.collides:
             t = float(times[hit.sample_index])
+            where = (
+                ""
+                if hit.frame == 0
+                else f" of the remembered frame {hit.frame} (t = {hit.frame_stamp_s:.3f} s)"
+            )
             return SafetyResult(
                 SafetyVerdict.COLLISION_IN_DEPTH,
                 f"collision_in_depth: at t = {t:.3f} s the vehicle sphere (r = {cfg.vehicle_radius_m:.2f} m) "
-                f"reaches {hit.sphere_depth_m:.3f} m deep along pixel ({hit.u}, {hit.v}) whose measured "
-                f"depth is {hit.measured_depth_m:.3f} m ({hit.occupied_pixels} occupied pixels)",
+                f"reaches {hit.sphere_depth_m:.3f} m deep along pixel ({hit.u}, {hit.v}){where} whose "
+                f"measured depth is {hit.measured_depth_m:.3f} m ({hit.occupied_pixels} occupied pixels)",
                 t,
             )
     return SafetyResult(SafetyVerdict.ACCEPTED, "accepted")
@@ -263,3 +339,35 @@ class VerdictCounts:
     @property
     def refused(self) -> int:
         return sum(n for v, n in self.counts.items() if v != SafetyVerdict.ACCEPTED)
+
+
+class DepthMemory:
+    """The earlier decision frames the safety layer judges out-of-view samples with (SafetyConfig
+    memory_frames, memory_spacing_s): after each decision its frame is kept when the newest kept one is at
+    least memory_spacing_s older; at most memory_frames are kept, the oldest dropped. A frame older than the
+    newest kept (time went back: a new episode, a replayed bag) empties it first. The C++ DepthMemory."""
+
+    def __init__(self, max_frames: int, spacing_s: float) -> None:
+        if max_frames < 0 or not (math.isfinite(spacing_s) and spacing_s >= 0.0):
+            raise ValueError(
+                f"depth memory: memory_frames must be >= 0 and memory_spacing_s finite and >= 0, got "
+                f"{max_frames} and {spacing_s}"
+            )
+        self.max_frames = max_frames
+        self.spacing_s = spacing_s
+        self.frames: list[DepthFrame] = []  # newest first
+
+    def clear(self) -> None:
+        self.frames = []
+
+    def add(self, stamp_s: float, depth_m: NDArray[np.float32], camera: CameraModel) -> bool:
+        """Keeps a copy of the frame if it is due; whether it was kept."""
+        if self.max_frames == 0:
+            return False
+        if self.frames and stamp_s < self.frames[0].stamp_s:
+            self.clear()
+        if self.frames and stamp_s - self.frames[0].stamp_s < self.spacing_s - 1e-9:
+            return False
+        frame = DepthFrame(float(stamp_s), np.array(depth_m, dtype=np.float32, copy=True), camera)
+        self.frames = [frame, *self.frames[: self.max_frames - 1]]
+        return True
