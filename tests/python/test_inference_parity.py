@@ -536,6 +536,8 @@ def test_the_depth_memory_refuses_alike_in_both_deciders_what_only_an_earlier_fr
         np.testing.assert_array_equal(cpp["verdict"], [int(d.safety.verdict) for d in py])
         assert list(cpp["reason"]) == [d.safety.reason for d in py]
         assert [f.stamp_s for f in decider.memory.frames] == ([1.2, 1.0] if frames else [])
+        decider.reset()  # a new episode forgets the frames
+        assert decider.memory.frames == []
         results[frames] = py
     assert _sent_kinds(results[0]) == [2, 1, 1, 1]
     assert _sent_kinds(results[2]) == [2, 2, 2, 2]
