@@ -278,14 +278,8 @@ def test_bad_depth_memory_settings_are_refused_with_their_names() -> None:
         cfg(memory_frames=65)
     with pytest.raises(ValueError, match="memory_spacing_s"):
         cfg(memory_spacing_s=-0.1)
+    before_the_memory = cfg().model_dump(exclude={"memory_frames", "memory_spacing_s"})
     with pytest.raises(ValueError, match="memory_frames"):
         SafetyConfig(
-            enabled=True,
-            max_vel_mps=5.0,
-            max_acc_mps2=10.0,
-            max_start_error_m=1.0,
-            vehicle_radius_m=0.25,
-            sample_dt_s=0.05,
-            check_horizon_s=0.0,
-            collision_min_pixels=1,
-        )  # required: a config written before the memory existed names the missing key
+            **before_the_memory
+        )  # required: a config written before the memory names the missing key

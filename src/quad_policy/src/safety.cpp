@@ -127,10 +127,6 @@ std::string Printf(const char* fmt, Args... args) {
   return buf;
 }
 
-}  // namespace
-
-namespace {
-
 void CheckFrame(const DepthImageView& depth, const CameraModel& camera, const std::string& what) {
   if (depth.data == nullptr || depth.width != camera.width || depth.height != camera.height) {
     throw std::invalid_argument(what + ": depth image and camera model sizes differ");
@@ -148,48 +144,60 @@ bool CentreInView(const Eigen::Vector3d& c, const CameraModel& camera) {
   return u >= 0.0 && u <= camera.width - 1.0 && v >= 0.0 && v <= camera.height - 1.0;
 }
 
+// The cameras a sample can be judged in: frame 0 the latest, k >= 1 the k-th remembered (newest first).
+class Views {
+ public:
+  Views(const CameraModel& latest, const std::vector<DepthFrame>& memory) {
+    cameras_.reserve(memory.size() + 1);
+    cameras_.push_back(&latest);
+    for (const DepthFrame& f : memory) cameras_.push_back(&f.camera);
+    T_camera_world_.reserve(cameras_.size());
+    for (const CameraModel* c : cameras_) T_camera_world_.push_back(c->T_world_camera.inverse());
+  }
+  int size() const { return static_cast<int>(cameras_.size()); }
+  const CameraModel& camera(int k) const { return *cameras_[k]; }
+  Eigen::Vector3d ToCamera(int k, const Eigen::Vector3d& p_world) const {
+    return T_camera_world_[k] * p_world;
+  }
+  // The first frame whose view holds the point (the latest, else the newest remembered); -1: none.
+  int Showing(const Eigen::Vector3d& p_world) const {
+    for (int k = 0; k < size(); ++k) {
+      if (CentreInView(ToCamera(k, p_world), camera(k))) return k;
+    }
+    return -1;
+  }
+
+ private:
+  std::vector<const CameraModel*> cameras_;
+  std::vector<Eigen::Isometry3d> T_camera_world_;
+};
+
 }  // namespace
 
 DepthCollision FindDepthCollision(const std::vector<Eigen::Vector3d>& samples_world, double radius_m,
                                   int min_pixels, const DepthImageView& depth, const CameraModel& camera,
                                   const std::vector<DepthFrame>& memory) {
-  // Frame 0 is the latest, k >= 1 the k-th remembered (newest first).
-  const int n_frames = 1 + static_cast<int>(memory.size());
-  std::vector<DepthImageView> depths;
-  std::vector<const CameraModel*> cameras;
-  depths.reserve(n_frames);
-  cameras.reserve(n_frames);
   CheckFrame(depth, camera, "latest frame");
-  depths.push_back(depth);
-  cameras.push_back(&camera);
+  std::vector<DepthImageView> depths{depth};
   for (std::size_t k = 0; k < memory.size(); ++k) {
     depths.push_back(memory[k].image.view());
-    cameras.push_back(&memory[k].camera);
     CheckFrame(depths.back(), memory[k].camera, "remembered frame " + std::to_string(k + 1));
   }
-  std::vector<Eigen::Isometry3d> T_camera_world(n_frames);
-  for (int k = 0; k < n_frames; ++k) T_camera_world[k] = cameras[k]->T_world_camera.inverse();
-  std::vector<std::vector<double>> dxs(n_frames), dys(n_frames);  // per frame, filled when first used
+  const Views views(camera, memory);
+  std::vector<std::vector<double>> dxs(views.size()), dys(views.size());  // per frame, filled when first used
   const double r2 = radius_m * radius_m;
   DepthCollision out;
   for (std::size_t j = 0; j < samples_world.size(); ++j) {
-    const Eigen::Vector3d c_latest = T_camera_world[0] * samples_world[j];
-    if (c_latest.squaredNorm() <= r2)
+    const Eigen::Vector3d& p = samples_world[j];
+    if (views.ToCamera(0, p).squaredNorm() <= r2) {
       continue;  // the sphere holds the latest camera: the vehicle's own place
-    // The judging frame: the latest when it shows the sample's centre, else the newest remembered frame that
-    // does, else the latest (which judges the part of the sphere it sees).
-    int k = 0;
-    if (!memory.empty() && !CentreInView(c_latest, camera)) {
-      for (int m = 1; m < n_frames; ++m) {
-        if (CentreInView(T_camera_world[m] * samples_world[j], *cameras[m])) {
-          k = m;
-          break;
-        }
-      }
     }
-    const CameraModel& cam = *cameras[k];
+    // The judging frame: the first that shows the sample's centre, else the latest (which judges the part of
+    // the sphere it sees).
+    const int k = memory.empty() ? 0 : std::max(0, views.Showing(p));
+    const CameraModel& cam = views.camera(k);
     const DepthImageView& img = depths[k];
-    const Eigen::Vector3d c = k == 0 ? c_latest : Eigen::Vector3d(T_camera_world[k] * samples_world[j]);
+    const Eigen::Vector3d c = views.ToCamera(k, p);
     const double c2 = c.squaredNorm();
     if (c2 <= r2) continue;  // the sphere holds that frame's camera: where the vehicle was, free
     int u0, u1, v0, v1;
@@ -253,21 +261,13 @@ std::vector<double> SafetySampleTimes(const UniformBspline& traj, const SafetyCo
 
 bool TrajectoryInView(const UniformBspline& traj, const CameraModel& camera, const SafetyConfig& cfg,
                       const std::vector<DepthFrame>& memory) {
-  const Eigen::Isometry3d T_camera_world = camera.T_world_camera.inverse();
-  std::vector<Eigen::Isometry3d> T_remembered;
-  T_remembered.reserve(memory.size());
-  for (const DepthFrame& f : memory) T_remembered.push_back(f.camera.T_world_camera.inverse());
+  const Views views(camera, memory);
   const double r2 = cfg.vehicle_radius_m * cfg.vehicle_radius_m;
   for (double t : SafetySampleTimes(traj, cfg)) {
     const Eigen::Vector3d p = traj.Position(t);
-    const Eigen::Vector3d c = T_camera_world * p;
-    if (c.squaredNorm() <= r2) continue;  // the vehicle's own place, as in FindDepthCollision
-    if (CentreInView(c, camera)) continue;
-    bool shown = false;
-    for (std::size_t k = 0; k < memory.size() && !shown; ++k) {
-      shown = CentreInView(T_remembered[k] * p, memory[k].camera);
-    }
-    if (!shown) return false;
+    if (views.ToCamera(0, p).squaredNorm() <= r2)
+      continue;  // the vehicle's own place, as in FindDepthCollision
+    if (views.Showing(p) < 0) return false;
   }
   return true;
 }

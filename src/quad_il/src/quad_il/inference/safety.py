@@ -88,9 +88,8 @@ class DepthCollision:
     v: int = -1
     measured_depth_m: float = 0.0
     sphere_depth_m: float = 0.0
-    frame: int = (
-        0  # the frame that judged the sample: 0 the latest, k >= 1 the k-th remembered (newest first)
-    )
+    # The frame that judged the sample: 0 the latest, k >= 1 the k-th remembered (newest first).
+    frame: int = 0
     frame_stamp_s: float = math.nan  # that remembered frame's stamp (NaN for the latest)
 
 
@@ -138,13 +137,13 @@ def _centre_in_view(c: FloatArray, camera: CameraModel) -> bool:
     return 0.0 <= u <= camera.width - 1.0 and 0.0 <= v <= camera.height - 1.0
 
 
-def _judging_frame(j: int, cams: list[FloatArray], cameras: list[CameraModel]) -> int:
-    """The frame that judges sample j: the latest (0) when it shows the sample's centre, else the newest
-    remembered frame that does, else the latest (which then judges the part of the sphere it sees)."""
+def _showing_frame(j: int, cams: list[FloatArray], cameras: list[CameraModel]) -> int | None:
+    """The first frame whose view holds sample j's centre: the latest (0), else the newest remembered; None:
+    no frame shows it. cams[k]: the samples in frame k's camera frame."""
     for k, cam in enumerate(cameras):
         if _centre_in_view(cams[k][j], cam):
             return k
-    return 0
+    return None
 
 
 def find_depth_collision(
@@ -166,7 +165,9 @@ def find_depth_collision(
     for j in range(len(cams[0])):
         if float(cams[0][j] @ cams[0][j]) <= r2:
             continue  # the sphere holds the (latest) camera: the vehicle's own place, not judged
-        k = _judging_frame(j, cams, cameras) if memory else 0
+        # The judging frame: the first that shows the sample's centre, else the latest (which judges the part
+        # of the sphere it sees).
+        k = (_showing_frame(j, cams, cameras) or 0) if memory else 0
         cam, depth, c = cameras[k], depths[k], cams[k][j]
         if k not in axes:
             axes[k] = (
@@ -240,15 +241,13 @@ def trajectory_in_view(
     it). With a memory, a sample shown by a remembered frame instead counts as in view (that frame judges
     it)."""
     points = traj.position(safety_sample_times(traj, cfg))
-    cams = _to_camera(camera, points)
-    others = [(_to_camera(f.camera, points), f.camera) for f in memory]
+    cameras = [camera] + [f.camera for f in memory]
+    cams = [_to_camera(c, points) for c in cameras]
     r2 = cfg.vehicle_radius_m * cfg.vehicle_radius_m
-    for j, c in enumerate(cams):
+    for j, c in enumerate(cams[0]):
         if float(c @ c) <= r2:
             continue  # the vehicle's own place, as in find_depth_collision
-        if not _centre_in_view(c, camera) and not any(
-            _centre_in_view(oc[j], oc_cam) for oc, oc_cam in others
-        ):
+        if _showing_frame(j, cams, cameras) is None:
             return False
     return True
 
