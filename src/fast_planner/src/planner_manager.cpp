@@ -45,6 +45,27 @@ std::string ValidateOdometry(const Odometry& o) {
   return "";
 }
 
+Eigen::Vector3d AccelerationFromOdometry(const std::deque<Odometry>& history, double t_s, double window_s,
+                                         double max_acc_mps2) {
+  if (!(window_s > 0.0)) return Eigen::Vector3d::Zero();
+  auto newest = history.end();
+  for (auto it = history.begin(); it != history.end(); ++it) {
+    if (it->stamp_s <= t_s + 1e-9) newest = it;
+  }
+  if (newest == history.end()) return Eigen::Vector3d::Zero();
+  auto older = history.end();
+  for (auto it = history.begin(); it != newest; ++it) {
+    if (it->stamp_s <= newest->stamp_s - window_s + 1e-9) older = it;
+  }
+  if (older == history.end()) return Eigen::Vector3d::Zero();
+  const double dt = newest->stamp_s - older->stamp_s;
+  Eigen::Vector3d a = (newest->v_world - older->v_world) / dt;
+  if (!a.allFinite()) return Eigen::Vector3d::Zero();
+  const double n = a.norm();
+  if (n > max_acc_mps2) a *= max_acc_mps2 / n;
+  return a;
+}
+
 const char* ToString(PlanStatus status) {
   switch (status) {
     case PlanStatus::kSuccess:

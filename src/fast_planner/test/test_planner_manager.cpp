@@ -1,6 +1,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <deque>
 #include <limits>
 #include <memory>
 #include <vector>
@@ -22,6 +23,51 @@ std::vector<Eigen::Vector3d> BoxPoints(const Eigen::Vector3d& lo, const Eigen::V
     }
   }
   return pts;
+}
+
+// Odometry at 200 Hz from t = 0 with velocity v(t) = v0 + a t.
+std::deque<Odometry> AcceleratingHistory(const Eigen::Vector3d& v0, const Eigen::Vector3d& a, int n) {
+  std::deque<Odometry> h;
+  for (int i = 0; i < n; ++i) {
+    Odometry o;
+    o.stamp_s = 0.005 * i;
+    o.v_world = v0 + a * o.stamp_s;
+    h.push_back(o);
+  }
+  return h;
+}
+
+TEST(AccelerationFromOdometry, RecoversAConstantAcceleration) {
+  const Eigen::Vector3d a(1.2, -0.5, 0.3);
+  const auto h = AcceleratingHistory(Eigen::Vector3d(2.0, 0.0, 0.0), a, 100);
+  // At t = 0.3 s with a 0.05 s window: odometry 0.3 s and 0.25 s.
+  EXPECT_LT((AccelerationFromOdometry(h, 0.3, 0.05, 10.0) - a).norm(), 1e-9);
+  // A frame between two odometry messages uses the newest one not after it.
+  EXPECT_LT((AccelerationFromOdometry(h, 0.3024, 0.05, 10.0) - a).norm(), 1e-9);
+}
+
+TEST(AccelerationFromOdometry, IgnoresOdometryAfterTheStamp) {
+  auto h = AcceleratingHistory(Eigen::Vector3d::Zero(), Eigen::Vector3d(1.0, 0.0, 0.0), 60);
+  Odometry late;
+  late.stamp_s = 0.5;
+  late.v_world = Eigen::Vector3d(100.0, 0.0, 0.0);
+  h.push_back(late);
+  EXPECT_NEAR(AccelerationFromOdometry(h, 0.2, 0.05, 10.0).x(), 1.0, 1e-9);
+}
+
+TEST(AccelerationFromOdometry, CapsTheNormAtTheLimit) {
+  const auto h = AcceleratingHistory(Eigen::Vector3d::Zero(), Eigen::Vector3d(6.0, 8.0, 0.0), 40);
+  const Eigen::Vector3d a = AccelerationFromOdometry(h, 0.1, 0.05, 2.0);
+  EXPECT_NEAR(a.norm(), 2.0, 1e-9);
+  EXPECT_NEAR(a.x() / a.y(), 0.75, 1e-9);  // direction kept
+}
+
+TEST(AccelerationFromOdometry, ZeroWithoutAPairOrWindow) {
+  const auto h = AcceleratingHistory(Eigen::Vector3d::Zero(), Eigen::Vector3d(1.0, 0.0, 0.0), 5);
+  EXPECT_TRUE(AccelerationFromOdometry(h, 0.02, 0.05, 10.0).isZero());   // history spans 0.02 s only
+  EXPECT_TRUE(AccelerationFromOdometry(h, -1.0, 0.05, 10.0).isZero());   // before every odometry
+  EXPECT_TRUE(AccelerationFromOdometry(h, 0.02, 0.0, 10.0).isZero());    // window 0: zero (as before)
+  EXPECT_TRUE(AccelerationFromOdometry({}, 0.02, 0.05, 10.0).isZero());  // no history
 }
 
 PlannerConfig GlobalConfig() {

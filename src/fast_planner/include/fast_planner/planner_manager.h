@@ -8,6 +8,7 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include <deque>
 #include <memory>
 #include <optional>
 #include <string>
@@ -31,6 +32,15 @@ struct Odometry {
 };
 // "" when every field is finite and the quaternion is not zero, else the reason.
 std::string ValidateOdometry(const Odometry& odom);
+
+// The vehicle's acceleration at time t_s from an odometry history ordered by stamp (oldest first): the
+// velocity difference between the newest odometry at or before t_s and the newest one at least window_s older
+// than it, over their time difference (a backward difference, late by about window_s / 2), its norm capped at
+// max_acc_mps2. Zero when window_s <= 0 or the history holds no such pair. The labeller's plans start from it
+// (docs/fast_planner.md, "Labeller mode"): a plan started at zero acceleration while the vehicle accelerates
+// drops the tracker's feed-forward, and replanned every frame such plans never let the vehicle speed up.
+Eigen::Vector3d AccelerationFromOdometry(const std::deque<Odometry>& history, double t_s, double window_s,
+                                         double max_acc_mps2);
 
 enum class PlanStatus {
   kSuccess,

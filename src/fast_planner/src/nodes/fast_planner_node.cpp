@@ -17,11 +17,12 @@
 //
 // Labeller mode (~label_every_frame true; issue 9, docs/imitation_learning.md): the expert does not fly. On
 // every depth frame it updates the map and plans from the vehicle's state at that frame (the newest odometry
-// not after the frame's stamp, moved on at its velocity to the stamp, acceleration zero) to the current goal,
-// publishes the plan on planner/bspline with start_time = the frame's header.stamp exactly (the pairing key
-// of the imitation collector), or an empty Bspline with that start_time when it has no plan, sends nothing to
-// the tracker, and still acknowledges every frame (after publishing). Goals are checked and answered on
-// planner/status as in flight mode; the replanning state machine is not used.
+// not after the frame's stamp, moved on at its velocity to the stamp, with the acceleration of the odometry's
+// last ~label_acc_window_s (default 0.05 s; 0: zero acceleration), AccelerationFromOdometry) to the current
+// goal, publishes the plan on planner/bspline with start_time = the frame's header.stamp exactly (the pairing
+// key of the imitation collector), or an empty Bspline with that start_time when it has no plan, sends
+// nothing to the tracker, and still acknowledges every frame (after publishing). Goals are checked and
+// answered on planner/status as in flight mode; the replanning state machine is not used.
 #include <actionlib/client/simple_action_client.h>
 #include <geometry_msgs/PoseStamped.h>
 #include <nav_msgs/Odometry.h>
@@ -252,8 +253,13 @@ class FastPlannerNode {
         consumer_(pnh.param<std::string>("frame_ack_consumer", "fast_planner")),
         tracker_accept_timeout_s_(pnh.param<double>("tracker_accept_timeout_s", 1.0)),
         label_every_frame_(pnh.param<bool>("label_every_frame", false)),
+        label_acc_window_s_(pnh.param<double>("label_acc_window_s", 0.05)),
         odom_period_s_(pnh.param<double>("odom_period_s", 0.005)),
         tf_listener_(tf_buffer_) {
+    if (!(std::isfinite(label_acc_window_s_) && label_acc_window_s_ >= 0.0)) {
+      throw std::invalid_argument("fast_planner: ~label_acc_window_s must be finite and >= 0, got " +
+                                  std::to_string(label_acc_window_s_));
+    }
     bspline_pub_ = nh_.advertise<quad_msgs::Bspline>("planner/bspline", 10);
     timing_pub_ = nh_.advertise<quad_msgs::PlanTiming>("planner/timing", 10);
     status_pub_ = nh_.advertise<std_msgs::String>("planner/status", 10, true);
@@ -662,7 +668,10 @@ class FastPlannerNode {
     PlanRequest req;
     req.start_p = best->p_world_body + best->v_world * (t - best->stamp_s);
     req.start_v = best->v_world;
-    req.start_a = Eigen::Vector3d::Zero();
+    // The vehicle's own acceleration, within the planner's limit: a plan from zero acceleration, flown for
+    // one frame and replaced, would never let the vehicle speed up (the learner trained on such labels
+    // crept).
+    req.start_a = AccelerationFromOdometry(odom_, t, label_acc_window_s_, cfg_.limits.max_acc_mps2);
     req.goal = *label_goal_;
     req.start_time_s = t;
     const PlanResult plan = m.Plan(req);
@@ -831,6 +840,7 @@ class FastPlannerNode {
   double tracker_accept_timeout_s_ = 1.0;
   uint64_t tracker_accept_timeouts_ = 0;
   bool label_every_frame_ = false;
+  double label_acc_window_s_ = 0.05;
   // The simulator's odometry period: a depth frame is processed once the odometry of its control period has
   // been received (see OnDepth).
   double odom_period_s_ = 0.005;
