@@ -231,3 +231,26 @@ def test_scheduler_factory() -> None:
     custom = build_scheduler(SchedulerConfig(name="custom"), opt)
     assert isinstance(custom, CustomCosineDecayRestarts)
     assert (custom.first_decay_steps, custom.t_mul, custom.alpha) == (50000, 1.5, 0.01)
+
+
+def test_cosine_scheduler_decays_once_over_the_whole_run() -> None:
+    # lr(t) = lr0 ((1 - alpha) (1 + cos(pi t / T)) / 2 + alpha), T = the run's steps: lr0 at the first step,
+    # half-way at T / 2, alpha lr0 + (1 - alpha) lr0 (1 + cos(pi (T - 1) / T)) / 2 at the last step.
+    opt = torch.optim.Adam([torch.nn.Parameter(torch.zeros(1))], lr=1e-3)
+    sched = build_scheduler(SchedulerConfig(name="cosine"), opt, total_steps=200)
+    lrs = []
+    for _ in range(200):
+        lrs.append(opt.param_groups[0]["lr"])
+        opt.step()
+        sched.step()
+    assert lrs[0] == pytest.approx(1e-3)
+    assert lrs[100] == pytest.approx(1e-3 * (0.99 * 0.5 + 0.01))
+    assert lrs[199] == pytest.approx(1e-3 * (0.99 * 0.5 * (1 + math.cos(math.pi * 199 / 200)) + 0.01))
+    assert lrs[199] < 1.1e-5
+    assert all(b <= a for a, b in zip(lrs, lrs[1:], strict=False))
+
+
+def test_cosine_scheduler_needs_the_run_length() -> None:
+    opt = torch.optim.SGD([torch.nn.Parameter(torch.zeros(1))], lr=1.0)
+    with pytest.raises(ValueError, match="needs the run's optimiser steps >= 1, got None"):
+        build_scheduler(SchedulerConfig(name="cosine"), opt)

@@ -154,10 +154,18 @@ class PytorchSchedulerConfig(_Strict):
     eta_min: float = Field(1e-5, ge=0.0)
 
 
+class CosineSchedulerConfig(_Strict):
+    alpha: float = Field(0.01, ge=0.0, le=1.0)  # final lr / initial lr
+
+
 class SchedulerConfig(_Strict):
-    name: Literal["custom", "pytorch", "none"] = "custom"
+    # custom / pytorch: the thesis's restarts (Tables 3.3 / 3.2); cosine: one cosine decay from optim.lr to
+    # cosine.alpha * optim.lr over every optimiser step of the run (optim.epochs), so the last epochs train at
+    # a small rate whatever the data size; none: constant optim.lr.
+    name: Literal["custom", "pytorch", "cosine", "none"] = "custom"
     custom: CustomSchedulerConfig = CustomSchedulerConfig()
     pytorch: PytorchSchedulerConfig = PytorchSchedulerConfig()
+    cosine: CosineSchedulerConfig = CosineSchedulerConfig()
 
 
 class LogConfig(_Strict):

@@ -333,7 +333,9 @@ class Trainer:
             self.optimizer = torch.optim.SGD(
                 params, lr=o.lr, momentum=o.momentum, weight_decay=o.weight_decay
             )
-        self.scheduler = build_scheduler(cfg.scheduler, self.optimizer)
+        self.scheduler = build_scheduler(
+            cfg.scheduler, self.optimizer, max(o.epochs * len(self.train_loader), 1)
+        )
         self._ddp: nn.Module | None = None
         if dist.enabled:
             from torch.nn.parallel import DistributedDataParallel
