@@ -70,6 +70,59 @@ class DAggerConfig(_Strict):
     beta: BetaConfig = BetaConfig()
 
 
+class DARTRangeConfig(_Strict):
+    """A closed interval [low, high] a value is drawn from uniformly (low == high: that value)."""
+
+    low: float = Field(ge=0.0)
+    high: float = Field(ge=0.0)
+
+    @model_validator(mode="after")
+    def _ordered(self) -> DARTRangeConfig:
+        if self.high < self.low:
+            raise ValueError(f"high ({self.high}) must be >= low ({self.low})")
+        return self
+
+
+class DARTConfig(_Strict):
+    """DART (Laskey et al. 2017): the expert flies and labels every step, but during seeded perturbation
+    events the plan executed is a disturbed one, so the data covers states off the expert's own path (stopped
+    in front of a box, heading beside the expert's line) with the expert's clean label for each
+    (docs/imitation_learning.md, "DART"). Needs no learner policy."""
+
+    name: Literal["dart"] = "dart"
+    event_rate_per_s: float = Field(0.4, gt=0.0)  # onsets per second of sim time while no event runs
+    min_gap_s: float = Field(1.0, ge=0.0)  # unperturbed flight between two events
+    first_after_s: float = Field(1.0, ge=0.0)  # no event before this long after the episode's first step
+    min_goal_distance_m: float = Field(2.0, ge=0.0)  # no onset this near the goal
+    brake_probability: float = Field(0.5, ge=0.0, le=1.0)  # share of brake events; the others veer
+    # brake: the executed plan brings the vehicle to rest along its line of motion (deceleration at most
+    # brake_decel_mps2) and holds it there; the event lasts brake_duration_s
+    brake_decel_mps2: float = Field(3.0, gt=0.0)
+    brake_duration_s: DARTRangeConfig = DARTRangeConfig(low=1.0, high=2.5)
+    # veer: the expert's plan turned about its start point by an angle drawn from veer_angle_deg (either
+    # side, equally likely), for veer_duration_s
+    veer_angle_deg: DARTRangeConfig = DARTRangeConfig(low=10.0, high=30.0)
+    veer_duration_s: DARTRangeConfig = DARTRangeConfig(low=0.3, high=0.8)
+    record_every_steps: int = Field(3, ge=1)  # record every N-th step that has an expert plan
+    # a new plan goes to the tracker every N-th step (and at each event's onset); between, the tracker flies
+    # the plan sent last. The labeller plans every frame; flown for one frame each, its plans never let the
+    # vehicle reach its speed (the expert's own state machine replans about every 1 m, 0.33 s at 3 m/s).
+    execute_every_steps: int = Field(10, ge=1)
+    # ... and at once, outside events, when the expert's newest plan departs from the plan being flown by more
+    # than this (sampled RMS over the next second, m): it saw something, as its state machine replans when its
+    # trajectory turns unsafe. 0: off.
+    replan_deviation_m: float = Field(0.3, ge=0.0)
+    # An episode that ends in a collision loses the records of its last collision_window_s (labels that led
+    # into it); records are released at the episode's end.
+    collision_window_s: float = Field(1.0, ge=0.0)
+
+    @model_validator(mode="after")
+    def _angles(self) -> DARTConfig:
+        if self.veer_angle_deg.high > 180.0:
+            raise ValueError(f"veer_angle_deg.high must be <= 180, got {self.veer_angle_deg.high}")
+        return self
+
+
 class HGDAggerConfig(_Strict):
     name: Literal["hg_dagger"] = "hg_dagger"
     gate: GateConfig = GateConfig()
@@ -141,7 +194,8 @@ class MegaDAggerConfig(_Strict):
 
 
 AlgorithmConfig = Annotated[
-    BCConfig | DAggerConfig | HGDAggerConfig | EILConfig | MegaDAggerConfig, Field(discriminator="name")
+    BCConfig | DAggerConfig | DARTConfig | HGDAggerConfig | EILConfig | MegaDAggerConfig,
+    Field(discriminator="name"),
 ]
 
 

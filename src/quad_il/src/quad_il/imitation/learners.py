@@ -10,6 +10,8 @@ flies, which plan is executed, and which records are written. Subclasses overrid
 - BC: the expert flies; every step is recorded with the expert's label (DEMO).
 - DAgger: the expert flies with probability beta_i, else the learner; every step gets the expert's label
   (DEMO).
+- DART: the expert flies, disturbed during seeded perturbation events (brake to rest, veer off its line);
+  every N-th step gets the expert's clean label (DEMO). No learner needed.
 - HG-DAgger: the learner flies, the expert while the gate is open; only expert-controlled steps are recorded
   (INTERVENTION).
 - EIL: as HG-DAgger, plus the learner's plans before and at each onset (BAD) and on the other learner steps
@@ -33,6 +35,8 @@ from quad_il.imitation.bspline import DeviationParams, SplineAction, deviation_m
 from quad_il.imitation.config import (
     BCConfig,
     DAggerConfig,
+    DARTConfig,
+    DARTRangeConfig,
     EILConfig,
     HGDAggerConfig,
     MegaConflictConfig,
@@ -58,6 +62,7 @@ from quad_il.imitation.types import (
     Partition,
     Record,
 )
+from quad_il.inference.trajectory import braking_trajectory
 
 
 class ImitationLearnerBase(abc.ABC):
@@ -131,6 +136,10 @@ class ImitationLearnerBase(abc.ABC):
         """Hook: records released at the end of the episode."""
         del outcome
         return ()
+
+    def algorithm_stats(self) -> dict[str, object]:
+        """Hook: counters of the algorithm's own (the collector writes them to its manifest)."""
+        return {}
 
     # ---- helpers ----
     def _record(
@@ -221,6 +230,166 @@ class DAggerLearner(ImitationLearnerBase):
             records,
             expert_name=pair.primary_expert if controller is Controller.EXPERT else None,
         )
+
+
+class DARTLearner(ImitationLearnerBase):
+    """DART (Laskey et al., "DART: Noise Injection for Robust Imitation Learning", CoRL 2017): the expert
+    flies and labels, and noise injected into what it executes makes the demonstrations visit states off its
+    own path, where a learned policy's errors take it, each labelled with the expert's undisturbed plan.
+
+    The noise here is a sequence of perturbation events in sim time (the learned policies fail stopped in
+    front of boxes and heading into them, states the expert's own flights never show):
+    - brake: the executed plan brings the vehicle to rest along its line of motion
+      (`braking_trajectory`, deceleration at most brake_decel_mps2) and holds it there;
+    - veer: the executed plan is the expert's plan turned about its start point by +-angle about the
+      vertical, so the vehicle heads off the expert's line.
+    A new plan is executed every execute_every_steps-th step, at each onset and end of an event, and outside
+    events when the expert's newest plan departs from the one being flown by more than replan_deviation_m
+    (the tracker flies the last one between: the labeller's plans, flown a frame each, would keep the vehicle
+    slow). An event starts with probability 1 - exp(-rate dt) per step (dt: the time since the previous
+    step) once min_gap_s has passed since the last one, first_after_s after the episode's first step, and
+    farther than min_goal_distance_m from the goal; kind, duration and angle are drawn at onset. Every
+    record_every_steps-th step with an expert plan is recorded (DEMO) with that plan as the label, inside
+    events as outside; records are released at the episode's end, without those of the last
+    collision_window_s before a collision.
+    Randomness: a fixed number of draws per step and per onset from the seeded generator.
+    """
+
+    name = "dart"
+
+    def __init__(self, round_index: int, rng: np.random.Generator, cfg: DARTConfig) -> None:
+        super().__init__(round_index, rng)
+        self.cfg = cfg
+        self.event_counts = {"brake": 0, "veer": 0}
+        self._reset_episode_state()
+
+    def _reset_episode_state(self) -> None:
+        self._first_stamp: float | None = None
+        self._prev_stamp: float | None = None
+        self._event: str | None = None  # "brake", "veer" or None
+        self._event_end_s = -math.inf
+        self._veer_rad = 0.0
+        self._labelled_steps = 0
+        self._since_sent: int | None = None  # steps since a plan was last executed (None: none yet)
+        self._pending = False  # an event started or ended: a new plan is due until one is sent
+        self._executed: SplineAction | None = None  # the plan being flown
+        self._records: list[Record] = []  # this episode's, released at its end
+
+    def _on_start_episode(self) -> None:
+        self._reset_episode_state()
+
+    def algorithm_stats(self) -> dict[str, object]:
+        return {"events": dict(self.event_counts)}
+
+    @property
+    def event(self) -> str | None:
+        """The perturbation running after the last step: "brake", "veer" or None."""
+        return self._event
+
+    def _draw(self, r: DARTRangeConfig) -> float:
+        return float(r.low + (r.high - r.low) * self.rng.random())
+
+    def _update_event(self, obs: Observation) -> None:
+        t = obs.stamp_s
+        if self._first_stamp is None:
+            self._first_stamp = t
+        dt = 0.0 if self._prev_stamp is None else max(t - self._prev_stamp, 0.0)
+        self._prev_stamp = t
+        if self._event is not None and t >= self._event_end_s:
+            self._event = None
+            self._pending = True  # the event's end: the expert's plan takes over at once
+        u = float(self.rng.random())  # drawn on every step, so the stream does not depend on the state
+        if self._event is not None:
+            return
+        cfg = self.cfg
+        allowed = (
+            t - self._first_stamp >= cfg.first_after_s
+            and t - self._event_end_s >= cfg.min_gap_s
+            and float(np.linalg.norm(obs.goal_world - obs.p_world_body)) > cfg.min_goal_distance_m
+        )
+        if not (allowed and u < 1.0 - math.exp(-cfg.event_rate_per_s * dt)):
+            return
+        if self.rng.random() < cfg.brake_probability:
+            self._event = "brake"
+            duration = self._draw(cfg.brake_duration_s)
+        else:
+            self._event = "veer"
+            duration = self._draw(cfg.veer_duration_s)
+            sign = 1.0 if self.rng.random() < 0.5 else -1.0
+            self._veer_rad = sign * math.radians(self._draw(cfg.veer_angle_deg))
+        self._event_end_s = t + duration
+        self._pending = True
+        self.event_counts[self._event] += 1
+
+    def _brake(self, obs: Observation) -> SplineAction:
+        traj = braking_trajectory(
+            obs.p_world_body, obs.v_world, self.cfg.brake_decel_mps2, BRAKE_MIN_DURATION_S, obs.stamp_s
+        )
+        return SplineAction.uniform(traj.ctrl_world, traj.knot_dt_s, 3, obs.stamp_s)
+
+    def callback(self, pair: Pair) -> Decision:
+        self._update_event(pair.obs)
+        expert = pair.expert
+        if expert is not None:
+            if self._labelled_steps % self.cfg.record_every_steps == 0:
+                self._records.append(
+                    self._record(pair.obs, expert, Partition.DEMO, pair.primary_expert, Controller.EXPERT)
+                )
+            self._labelled_steps += 1
+        due = (
+            self._pending
+            or self._since_sent is None
+            or self._since_sent + 1 >= self.cfg.execute_every_steps
+            or self._expert_departs(pair)
+        )
+        action: SplineAction | None = None
+        if due:
+            if self._event == "brake":
+                action = self._brake(pair.obs)
+            elif expert is not None:
+                action = turned_about_start(expert, self._veer_rad) if self._event == "veer" else expert
+        if action is None:  # not due, or due without a plan (retried on the next step)
+            if self._since_sent is not None and not due:
+                self._since_sent += 1
+            return Decision(Controller.NONE, None)
+        self._since_sent = 0
+        self._pending = False
+        self._executed = action
+        return Decision(Controller.EXPERT, action, expert_name=pair.primary_expert)
+
+    def _expert_departs(self, pair: Pair) -> bool:
+        """Outside events: the expert's newest plan departs from the plan being flown (it saw something)."""
+        if self._event is not None or self.cfg.replan_deviation_m <= 0.0:
+            return False
+        if pair.expert is None or self._executed is None:
+            return False
+        d = deviation_m(pair.expert, self._executed, pair.obs.stamp_s, DART_DEVIATION)
+        return d > self.cfg.replan_deviation_m
+
+    def _finish_episode(self, outcome: EpisodeOutcome) -> Sequence[Record]:
+        records, self._records = self._records, []
+        if outcome.collided and outcome.collision_time_s is not None:
+            cutoff = outcome.collision_time_s - self.cfg.collision_window_s
+            before = len(records)
+            records = [r for r in records if r.obs.stamp_s < cutoff]
+            self.stats.dropped_collision += before - len(records)
+        return records
+
+
+# Shortest braking trajectory of DART's brake events (s): from rest it is a hold of this length.
+BRAKE_MIN_DURATION_S = 0.5
+# How DART compares the expert's newest plan with the one being flown: sampled RMS over the next second.
+DART_DEVIATION = DeviationParams("sampled_rms", 1.0, 11)
+
+
+def turned_about_start(action: SplineAction, yaw_rad: float) -> SplineAction:
+    """The plan turned by yaw_rad about the vertical through its start point (the position at its start
+    time): same knots and timing, same start position, its velocity and shape rotated."""
+    p0 = action.positions([action.start_time_s])[0]
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    ctrl = (action.ctrl_pts_world - p0) @ rot.T + p0
+    return SplineAction(ctrl, action.knots, action.order, action.start_time_s, action.traj_id)
 
 
 class _GatedLearner(ImitationLearnerBase):
@@ -578,6 +747,8 @@ def make_learner(
     BC."""
     algo = cfg.algorithm
     r = cfg.round_index
+    if isinstance(algo, DARTConfig):  # the expert flies: no learner policy needed
+        return DARTLearner(r, rng, algo)
     if cfg.expert_only or isinstance(algo, BCConfig):
         return BCLearner(r, rng)
     if isinstance(algo, DAggerConfig):

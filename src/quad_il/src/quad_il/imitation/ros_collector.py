@@ -540,6 +540,7 @@ def main() -> None:  # pragma: no cover - needs a ROS master; tests/rostest/il_d
                     "records": core.records_written,
                     "interrupted": state["interrupted"],
                     "stats": vars(learner.stats),
+                    "algorithm_stats": learner.algorithm_stats(),
                     "pairer": vars(core.pairer.stats),
                     "collector": counters,
                 },
