@@ -850,3 +850,23 @@ def test_final_approach_config_errors_name_the_key(tmp_path: Path, old: str, new
     bad.write_text(text.replace(old, new))
     with pytest.raises(PolicyConfigError, match=message):
         load_policy_config(bad)
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "message"),
+    [
+        ("commit_s: 0.0", "commit_s: -0.1", r"keeping\.commit_s[\s\S]*greater than or equal to 0"),
+        ("commit_s: 0.0", "commit_s: .nan", r"keeping\.commit_s[\s\S]*finite number"),
+        ("on_refusal: false", "on_refusal: maybe", r"keeping\.on_refusal[\s\S]*valid boolean"),
+        ("  on_refusal: false", "  on_refusal_x: false", r"keeping\.on_refusal_x': Extra inputs"),
+    ],
+)
+def test_keeping_config_errors_name_the_key(tmp_path: Path, old: str, new: str, message: str) -> None:
+    keeping = load_policy_config(CONFIG).keeping
+    assert keeping.commit_s == 0.0 and not keeping.on_refusal  # off in the repository's config
+    bad = tmp_path / "policy.yaml"
+    text = CONFIG.read_text()
+    assert old in text
+    bad.write_text(text.replace(old, new))
+    with pytest.raises(PolicyConfigError, match=message):
+        load_policy_config(bad)

@@ -76,7 +76,7 @@ def _decide_all(decider: PolicyDecider, fx: DecisionFixture) -> list:
 def _sent_kinds(py: list) -> list[int]:
     """policy_replay's sent_kind of each Python decision."""
     return [
-        0
+        ((7 if d.committed else 6) if d.kept is not None else 0)
         if d.to_send() is None
         else (
             5
@@ -545,6 +545,66 @@ def test_the_depth_memory_refuses_alike_in_both_deciders_what_only_an_earlier_fr
     assert "remembered" not in reasons[0]
     assert all("of the remembered frame 1 (t = 1.000 s)" in r for r in reasons[1:3]), reasons
     assert "of the remembered frame 2 (t = 1.000 s)" in reasons[3], reasons
+
+
+def _keeping_run(tmp_path: Path, name: str, depth: np.ndarray, goals: np.ndarray, replace: dict[str, str]):
+    """The goal-line double over a hover scene (frames 0.1 s apart, vehicle at the origin facing +x) in both
+    deciders with config/policy.yaml and the replacements; both sequences of sent kinds must agree, and the
+    verdicts and their words. Returns the Python decisions."""
+    policy_path = export_goal_line_policy(tmp_path / "goal_line.ts")
+    fx, config = _hover_scene(
+        tmp_path / name, depth, np.array([0.0, 0.0, 1.5]), np.array([0.0, 0.0, 0.0, 1.0]), goals, replace
+    )
+    cfg = load_policy_config(config)
+    cpp = _replay(policy_path, tmp_path / name / "fx", config, tmp_path / name / "cpp")
+    decider = PolicyDecider(LoadedPolicy(policy_path), cfg.safety, cfg.refusal, cfg.recovery, cfg.keeping)
+    py = _decide_all(decider, fx)
+    np.testing.assert_array_equal(cpp["sent_kind"], _sent_kinds(py))
+    np.testing.assert_array_equal(cpp["verdict"], [int(d.safety.verdict) for d in py])
+    assert list(cpp["reason"]) == [d.safety.reason for d in py]
+    return py
+
+
+def _left_wall(depth: np.ndarray, frame: int, columns: int) -> None:
+    """A wall 1.0 m ahead filling the image's `columns` leftmost columns in `frame`."""
+    depth[frame][:, :columns] = 1.0
+
+
+def test_a_refused_decision_keeps_the_plan_sent_before_alike_in_both_deciders(tmp_path: Path) -> None:
+    """keeping.on_refusal: frame 0 sees nothing (the plan straight ahead is sent); frames 1-2 see a wall on
+    the left and the goal is turned 25 deg into it: the proposal is refused, the plan of frame 0 still passes
+    the wall, so it is kept (nothing sent); frame 3's wider wall is in the way of that plan too: stop; frame
+    4 sees nothing (sent). Off, the refusals stop at once."""
+    n = 5
+    depth = np.full((n, H, W), np.inf, np.float32)
+    for f in (1, 2):
+        _left_wall(depth, f, 25)
+    _left_wall(depth, 3, 30)
+    turned = [10.0 * np.cos(np.radians(25.0)), 10.0 * np.sin(np.radians(25.0)), 1.5]
+    goals = np.array([[10.0, 0.0, 1.5], turned, turned, turned, turned])
+    on = _keeping_run(tmp_path, "on", depth, goals, {"on_refusal: false": "on_refusal: true"})
+    assert _sent_kinds(on) == [1, 6, 6, 2, 1]
+    assert all(d.kept is on[0].proposed and not d.committed for d in on[1:3])
+    assert [d.safety.verdict.label for d in on[1:4]] == ["collision_in_depth"] * 3
+    off = _keeping_run(tmp_path, "off", depth, goals, {})
+    assert _sent_kinds(off) == [1, 2, 2, 2, 1]
+
+
+def test_a_committed_plan_is_flown_on_until_it_ends_or_its_rest_is_blocked(tmp_path: Path) -> None:
+    """keeping.commit_s 0.25: the plan of frame 0 is committed to in frames 1-2 (0.1 and 0.2 s old; nothing
+    sent), replaced in frame 3 (0.3 s); in frame 4 a wall blocks the rest of frame 3's plan, so the commitment
+    ends and the refused proposal stops the vehicle; frame 5 sends again."""
+    n = 6
+    depth = np.full((n, H, W), np.inf, np.float32)
+    _left_wall(depth, 4, 30)
+    goals = np.tile([10.0, 0.0, 1.5], (n, 1))
+    py = _keeping_run(tmp_path, "commit", depth, goals, {"commit_s: 0.0": "commit_s: 0.25"})
+    assert _sent_kinds(py) == [1, 7, 7, 1, 2, 1]
+    assert py[1].committed and py[1].kept is py[0].proposed and py[2].kept is py[0].proposed
+    # The network is still asked on committed frames: the same proposal as without the commitment.
+    free = _keeping_run(tmp_path, "free", depth, goals, {})
+    assert _sent_kinds(free) == [1, 1, 1, 1, 2, 1]
+    np.testing.assert_allclose(py[1].proposed.ctrl_world, free[1].proposed.ctrl_world)
 
 
 def test_bspline_messages_carry_the_heading_only_when_the_trajectory_has_one() -> None:

@@ -17,6 +17,7 @@ from quad_il.inference.safety import (
     VerdictCounts,
     check_trajectory,
     find_depth_collision,
+    rest_is_clear,
     safety_sample_times,
     trajectory_in_view,
 )
@@ -283,3 +284,31 @@ def test_bad_depth_memory_settings_are_refused_with_their_names() -> None:
         SafetyConfig(
             **before_the_memory
         )  # required: a config written before the memory names the missing key
+
+
+def test_the_rest_of_a_plan_is_judged_from_now_on_with_the_recovery_test() -> None:
+    """As the C++ RestIsClear test: the line flown from t = 5 s, judged at 5.3 s (0.45 m along)."""
+    plan = line(1.5)
+    c = cfg(check_horizon_s=1.0)
+    there = np.array([-0.1 + 1.5 * 0.3, 0.0, 0.0])
+    free = uniform(np.inf)
+    assert rest_is_clear(plan, 5.3, 1.0, there, free, camera(), c)
+    # too little left, not started yet, the vehicle far from the plan, a non-finite time
+    assert not rest_is_clear(plan, 6.2, 1.0, there, free, camera(), c)
+    assert not rest_is_clear(plan, 4.9, 1.0, there, free, camera(), c)
+    assert not rest_is_clear(plan, 5.3, 1.0, there + [0.0, 1.1, 0.0], free, camera(), c)
+    assert not rest_is_clear(plan, float("nan"), 1.0, there, free, camera(), c)
+    # a wall 1.2 m ahead is in the next second's way; one 2.4 m ahead is not (the whole plan would reach it)
+    assert not rest_is_clear(plan, 5.3, 1.0, there, uniform(1.2), camera(), c)
+    assert rest_is_clear(plan, 5.3, 1.0, there, uniform(2.4), camera(), c)
+    assert not check_trajectory(plan, VEHICLE, uniform(2.4), camera(), cfg()).accepted
+    # leaving the view: the line turned 60 deg left of the camera's axis
+    d = plan.ctrl_world[:, 0] + 0.1
+    turned = UniformBspline(
+        5.0, plan.knot_dt_s, np.column_stack([-0.1 + 0.5 * d, np.sqrt(3.0) / 2.0 * d, np.zeros(10)])
+    )
+    assert not rest_is_clear(turned, 5.3, 1.0, turned.position(0.3)[0], free, camera(), c)
+    # with the safety layer off only time and place count
+    assert rest_is_clear(
+        plan, 5.3, 1.0, there, uniform(1.2), camera(), cfg(check_horizon_s=1.0, enabled=False)
+    )

@@ -41,6 +41,8 @@ PolicyNodeConfig Load(quad_common::StrictYaml y) {
   c.recovery.turn_clearance_m = y.Get<double>("recovery.turn_clearance_m", NonNegative());
   c.recovery.final_approach_m = y.Get<double>("recovery.final_approach_m", NonNegative());
   c.recovery.final_approach_acc_mps2 = y.Get<double>("recovery.final_approach_acc_mps2", Positive());
+  c.keeping.commit_s = y.Get<double>("keeping.commit_s", NonNegative());
+  c.keeping.on_refusal = y.Get<bool>("keeping.on_refusal");
   c.safety.enabled = y.Get<bool>("safety.enabled");
   c.safety.max_vel_mps = y.Get<double>("safety.max_vel_mps", Positive());
   c.safety.max_acc_mps2 = y.Get<double>("safety.max_acc_mps2", Positive());

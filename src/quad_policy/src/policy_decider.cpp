@@ -12,6 +12,7 @@ namespace quad_policy {
 const char* ToString(RefusalAction action) { return action == RefusalAction::kHover ? "hover" : "stop"; }
 
 const UniformBspline* Decision::to_send() const {
+  if (kept) return nullptr;
   if (final_approach) return &*final_approach;
   if (recovery) return &*recovery;
   if (accepted()) return &proposed;
@@ -121,23 +122,34 @@ void ValidateTurning(const RecoveryConfig& r, const RefusalConfig& refusal) {
   }
 }
 
+void ValidateKeeping(const KeepingConfig& k) {
+  if (!(std::isfinite(k.commit_s) && k.commit_s >= 0.0)) {
+    throw std::invalid_argument("keeping.commit_s must be finite and >= 0 (0: off), got " +
+                                std::to_string(k.commit_s));
+  }
+}
+
 PolicyDecider::PolicyDecider(std::shared_ptr<const TorchPolicy> policy, const SafetyConfig& safety,
-                             const RefusalConfig& refusal, const RecoveryConfig& recovery)
+                             const RefusalConfig& refusal, const RecoveryConfig& recovery,
+                             const KeepingConfig& keeping)
     : policy_(std::move(policy)),
       safety_(safety),
       refusal_(refusal),
       recovery_(recovery),
+      keeping_(keeping),
       decoder_(policy_ ? policy_->meta() : throw std::invalid_argument("PolicyDecider needs a policy")) {
   ValidateSafetyConfig(safety_);
   ValidateRefusal(refusal_);
   ValidateRecoveryConfig(recovery_, safety_);
   ValidateTurning(recovery_, refusal_);
+  ValidateKeeping(keeping_);
   memory_ = DepthMemory(safety_.memory_frames, safety_.memory_spacing_s);
 }
 
 void PolicyDecider::Reset() {
   EndStops();
   memory_.Clear();
+  sent_.reset();
 }
 
 void PolicyDecider::EndStops() {
@@ -170,7 +182,24 @@ Decision PolicyDecider::Decide(const DecisionInputs& in) {
   t0 = std::chrono::steady_clock::now();
   const std::vector<DepthFrame>& mem = memory_.frames();  // earlier frames; this one is added at the end
   d.safety = CheckTrajectory(d.proposed, in.state.p_world_body, &in.depth, in.camera, safety_, mem);
-  if ((in.goal_world - in.state.p_world_body).norm() < recovery_.final_approach_m) {  // 0: off
+  // The rest of the plan sent before, judged at most once per decision (KeepingConfig).
+  std::optional<bool> rest_clear;
+  const auto rest_is_clear = [&]() {
+    if (!rest_clear) {
+      rest_clear =
+          RestIsClear(*sent_, in.stamp_s, std::max(safety_.check_horizon_s, refusal_.stop_min_duration_s),
+                      in.state.p_world_body, in.depth, in.camera, safety_, mem);
+    }
+    return *rest_clear;
+  };
+  // A committed plan is flown on while it is younger than commit_s and its rest is clear: nothing else is
+  // tried (the network's plan is still computed, for the record and the timings).
+  if (keeping_.commit_s > 0.0 && sent_ && in.stamp_s - sent_->start_time_s < keeping_.commit_s &&
+      rest_is_clear()) {
+    d.kept = sent_;
+    d.committed = true;
+  }
+  if (!d.kept && (in.goal_world - in.state.p_world_body).norm() < recovery_.final_approach_m) {  // 0: off
     std::optional<UniformBspline> traj =
         FinalApproach(in.state.p_world_body, in.state.v_world, in.goal_world,
                       recovery_.final_approach_acc_mps2, refusal_.stop_min_duration_s, in.stamp_s);
@@ -190,7 +219,7 @@ Decision PolicyDecider::Decide(const DecisionInputs& in) {
   const bool steering =
       d.accepted() && recovery_.steer_clearance_m > 0.0 &&
       !CheckTrajectory(d.proposed, in.state.p_world_body, &in.depth, in.camera, steer, mem).accepted();
-  if (!d.final_approach && (!d.accepted() || steering)) {
+  if (!d.kept && !d.final_approach && (!d.accepted() || steering)) {
     // Yaw 0 (never a configured turn: those are non-zero) stands for the goal itself.
     std::vector<double> yaws{0.0};
     yaws.insert(yaws.end(), recovery_.goal_yaw_offsets_deg.begin(), recovery_.goal_yaw_offsets_deg.end());
@@ -220,7 +249,14 @@ Decision PolicyDecider::Decide(const DecisionInputs& in) {
       if (d.recovery) break;
     }
   }
-  if (!d.accepted() && !d.recovery && !d.final_approach && refusal_.action == RefusalAction::kStop) {
+  // Keeping the plan on a refusal: not recovered, the tracker flies on along the trajectory sent before while
+  // its rest from now on passes the test a recovery plan passes.
+  if (keeping_.on_refusal && !d.kept && !d.accepted() && !d.recovery && !d.final_approach && sent_ &&
+      rest_is_clear()) {
+    d.kept = sent_;
+  }
+  if (!d.accepted() && !d.recovery && !d.final_approach && !d.kept &&
+      refusal_.action == RefusalAction::kStop) {
     ++stops_in_row_;
     if (recovery_.turn_after_stops > 0 && stops_in_row_ >= recovery_.turn_after_stops) {
       const Eigen::Matrix3d R = in.state.q_world_body.normalized().toRotationMatrix();
@@ -245,6 +281,15 @@ Decision PolicyDecider::Decide(const DecisionInputs& in) {
     EndStops();
   }
   memory_.Add(in.stamp_s, in.depth, in.camera);
+  // The plan the tracker now flies; a stopping trajectory is never kept (the next refusal stops anew).
+  if (!d.kept) {
+    const UniformBspline* sent = d.to_send();
+    if (sent != nullptr && !(d.stop && sent == &*d.stop)) {
+      sent_ = *sent;
+    } else {
+      sent_.reset();
+    }
+  }
   d.timings.safety_ms = MsSince(t0);
   counts_.Add(d.safety.verdict);
   return d;

@@ -247,29 +247,46 @@ DepthCollision FindDepthCollision(const std::vector<Eigen::Vector3d>& samples_wo
   return out;
 }
 
-std::vector<double> SafetySampleTimes(const UniformBspline& traj, const SafetyConfig& cfg) {
-  const double duration = traj.duration_s();
+std::vector<double> SafetySampleTimes(const UniformBspline& traj, const SafetyConfig& cfg, double from_s) {
+  const double duration = traj.duration_s() - from_s;
   const double horizon = cfg.check_horizon_s > 0.0 ? std::min(cfg.check_horizon_s, duration) : duration;
-  // Integer steps (identical in the Python twin): j * dt for j = 0 .. n, then the horizon if not reached.
+  // Integer steps (identical in the Python twin): from_s + j * dt for j = 0 .. n, then the horizon if not
+  // reached.
   const long n = static_cast<long>(std::floor(horizon / cfg.sample_dt_s + 1e-9));
   std::vector<double> times;
   times.reserve(n + 2);
-  for (long j = 0; j <= n; ++j) times.push_back(j * cfg.sample_dt_s);
-  if (times.back() < horizon - 1e-9) times.push_back(horizon);
+  for (long j = 0; j <= n; ++j) times.push_back(from_s + j * cfg.sample_dt_s);
+  if (times.back() < from_s + horizon - 1e-9) times.push_back(from_s + horizon);
   return times;
 }
 
 bool TrajectoryInView(const UniformBspline& traj, const CameraModel& camera, const SafetyConfig& cfg,
-                      const std::vector<DepthFrame>& memory) {
+                      const std::vector<DepthFrame>& memory, double from_s) {
   const Views views(camera, memory);
   const double r2 = cfg.vehicle_radius_m * cfg.vehicle_radius_m;
-  for (double t : SafetySampleTimes(traj, cfg)) {
+  for (double t : SafetySampleTimes(traj, cfg, from_s)) {
     const Eigen::Vector3d p = traj.Position(t);
     if (views.ToCamera(0, p).squaredNorm() <= r2)
       continue;  // the vehicle's own place, as in FindDepthCollision
     if (views.Showing(p) < 0) return false;
   }
   return true;
+}
+
+bool RestIsClear(const UniformBspline& traj, double now_s, double min_rest_s,
+                 const Eigen::Vector3d& p_world_vehicle, const DepthImageView& depth,
+                 const CameraModel& camera, const SafetyConfig& cfg, const std::vector<DepthFrame>& memory) {
+  const double elapsed = now_s - traj.start_time_s;
+  if (!(std::isfinite(elapsed) && elapsed >= 0.0 && traj.duration_s() - elapsed >= min_rest_s)) return false;
+  if (!((traj.Position(elapsed) - p_world_vehicle).norm() <= cfg.max_start_error_m)) return false;
+  if (!cfg.enabled) return true;
+  const std::vector<double> times = SafetySampleTimes(traj, cfg, elapsed);
+  std::vector<Eigen::Vector3d> samples;
+  samples.reserve(times.size());
+  for (double t : times) samples.push_back(traj.Position(t));
+  return !FindDepthCollision(samples, cfg.vehicle_radius_m, cfg.collision_min_pixels, depth, camera, memory)
+              .collides &&
+         TrajectoryInView(traj, camera, cfg, memory, elapsed);
 }
 
 SafetyResult CheckTrajectory(const UniformBspline& traj, const Eigen::Vector3d& p_world_vehicle,

@@ -324,6 +324,18 @@ TEST(PolicyNodeConfig, TurningInPlaceIsReadAndBadValuesNamed) {
                   RepoConfigWith("final_approach_acc_mps2: 2.0", "final_approach_acc_mps2: 0"), "c");
             }).find("'recovery.final_approach_acc_mps2' has value 0"),
             std::string::npos);
+  EXPECT_EQ(c.keeping.commit_s, 0.0);  // off by default
+  EXPECT_FALSE(c.keeping.on_refusal);
+  std::string keeping = RepoConfigWith("commit_s: 0.0", "commit_s: 0.3");
+  keeping.replace(keeping.find("on_refusal: false"), std::string("on_refusal: false").size(),
+                  "on_refusal: true");
+  const PolicyNodeConfig keep = PolicyNodeConfigFromString(keeping, "c");
+  EXPECT_EQ(keep.keeping.commit_s, 0.3);
+  EXPECT_TRUE(keep.keeping.on_refusal);
+  EXPECT_NE(ErrorOf([&] {
+              PolicyNodeConfigFromString(RepoConfigWith("commit_s: 0.0", "commit_s: -1"), "c");
+            }).find("'keeping.commit_s' has value -1"),
+            std::string::npos);
   RecoveryConfig bad;
   bad.final_approach_m = std::nan("");
   EXPECT_NE(ErrorOf([&] { ValidateRecoveryConfig(bad); }).find("recovery.final_approach_m must be >= 0"),

@@ -418,6 +418,56 @@ TEST(DepthMemory, BadSettingsAndSizesAreRefusedWithTheirNames) {
             std::string::npos);
 }
 
+// The line of Line() flown from t = 5 s; at 1.5 m/s it is 0.45 m further along 0.3 s later.
+TEST(RestIsClear, TheRestOfAPlanIsJudgedFromNowOnWithTheRecoveryTest) {
+  const UniformBspline plan = Line(1.5);  // starts at t = 5 s, 2 s long
+  SafetyConfig cfg;
+  cfg.vehicle_radius_m = 0.25;
+  cfg.check_horizon_s = 1.0;
+  const DepthImage free = Uniform(kInf);
+  const DepthImageView fv = free.view();
+  const Eigen::Vector3d there(-0.1 + 1.5 * 0.3, 0.0, 0.0);  // where the plan is at t = 5.3 s
+  EXPECT_TRUE(RestIsClear(plan, 5.3, 1.0, there, fv, Camera(), cfg));
+  // Too little of it left, not started yet, or the vehicle far from where the plan is now.
+  EXPECT_FALSE(RestIsClear(plan, 6.2, 1.0, there, fv, Camera(), cfg));
+  EXPECT_FALSE(RestIsClear(plan, 4.9, 1.0, there, fv, Camera(), cfg));
+  EXPECT_FALSE(RestIsClear(plan, 5.3, 1.0, there + Eigen::Vector3d(0.0, 1.1, 0.0), fv, Camera(), cfg));
+  EXPECT_FALSE(RestIsClear(plan, std::nan(""), 1.0, there, fv, Camera(), cfg));
+  // A wall 1.2 m ahead of the camera: the next second of the plan (to 1.85 m) runs into it.
+  const DepthImage wall = Uniform(1.2f);
+  EXPECT_FALSE(RestIsClear(plan, 5.3, 1.0, there, wall.view(), Camera(), cfg));
+  // Judged from now on: a wall 2.4 m ahead is beyond the next second of the rest from 5.3 s (its samples
+  // reach 1.85 m + 0.25 m), though the whole plan (3 m) would reach it.
+  const DepthImage far = Uniform(2.4f);
+  EXPECT_TRUE(RestIsClear(plan, 5.3, 1.0, there, far.view(), Camera(), cfg));
+  // Leaving the view is refused as for a recovery plan: the line turned 60 deg left of the camera's axis.
+  UniformBspline turned = plan;
+  for (int i = 0; i < 10; ++i) {
+    const double d = turned.ctrl_world(i, 0) + 0.1;
+    turned.ctrl_world.row(i) << -0.1 + d * 0.5, d * std::sqrt(3.0) / 2.0, 0.0;
+  }
+  const Eigen::Vector3d turned_there = turned.Position(0.3);
+  EXPECT_FALSE(RestIsClear(turned, 5.3, 1.0, turned_there, fv, Camera(), cfg));
+  // With the safety layer off only time and place count.
+  SafetyConfig off = cfg;
+  off.enabled = false;
+  EXPECT_TRUE(RestIsClear(plan, 5.3, 1.0, there, wall.view(), Camera(), off));
+}
+
+TEST(Keeping, BadSettingsAreRefusedWithTheirNames) {
+  KeepingConfig k;
+  EXPECT_NO_THROW(ValidateKeeping(k));
+  k.commit_s = -0.1;
+  try {
+    ValidateKeeping(k);
+    ADD_FAILURE() << "no error";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("keeping.commit_s must be finite and >= 0"), std::string::npos);
+  }
+  k.commit_s = std::nan("");
+  EXPECT_THROW(ValidateKeeping(k), std::invalid_argument);
+}
+
 TEST(Recovery, TurnedGoalsKeepDistanceAndHeight) {
   const Eigen::Vector3d p(1.0, 2.0, 1.5), goal(11.0, 2.0, 3.0);
   EXPECT_TRUE(TurnedGoal(p, goal, 90.0).isApprox(Eigen::Vector3d(1.0, 12.0, 3.0), 1e-12));

@@ -14,7 +14,9 @@
 // recovery_tries.npy, recovery_yaw_deg.npy (NaN: not recovered) and recovery_ctrl.npy (zeros: not
 // recovered); sent_kind.npy is 0 nothing, 1 the policy's plan, 2 the stopping trajectory, 3 the recovery's, 4
 // the recovery's replacing an accepted plan (steering), 5 the final approach (recovery.final_approach_m; its
-// 4 control points in final_ctrl.npy and knot interval in final_knot_dt.npy, zeros: none). Turning in place
+// 4 control points in final_ctrl.npy and knot interval in final_knot_dt.npy, zeros: none), 6 nothing, the
+// plan sent before kept on a refusal (keeping.on_refusal), 7 nothing, the plan sent before committed to
+// (keeping.commit_s). Turning in place
 // (recovery.turn_after_stops) writes turn_rate_radps.npy (0: not turning) and stop_yaw.npy (the stopping
 // trajectory's 4 yaw control points; zeros: none). With several hypotheses (model.hypotheses), y.npy holds
 // the whole network output, proposed_hypothesis.npy the index of the plan proposed and
@@ -68,7 +70,7 @@ int main(int argc, char** argv) {
     const PolicyNodeConfig cfg = LoadPolicyNodeConfig(args["config"]);
     ConfigureTorchThreads(args.count("threads") ? std::stoi(args["threads"]) : 1);
     auto policy = std::make_shared<const TorchPolicy>(args["policy"]);
-    PolicyDecider decider(policy, cfg.safety, cfg.refusal, cfg.recovery);
+    PolicyDecider decider(policy, cfg.safety, cfg.refusal, cfg.recovery, cfg.keeping);
     const DecisionFixture fx = ReadDecisionFixture(args["fixture"]);
     const PolicyMeta& m = policy->meta();
     const std::size_t n = fx.frames.size();
@@ -99,7 +101,7 @@ int main(int argc, char** argv) {
       verdict.push_back(static_cast<int32_t>(d.safety.verdict));
       safety_value.push_back(d.safety.value);
       const UniformBspline* sent = d.to_send();
-      sent_kind.push_back(sent == nullptr    ? 0
+      sent_kind.push_back(sent == nullptr    ? (d.kept ? (d.committed ? 7 : 6) : 0)
                           : d.final_approach ? 5
                           : d.recovery       ? (d.steered ? 4 : 3)
                           : d.accepted()     ? 1

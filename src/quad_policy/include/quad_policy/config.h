@@ -21,6 +21,7 @@ struct PolicyNodeConfig {
   bool send_to_tracker = true;  // send trajectories to the tracker action (else only publish them)
   RefusalConfig refusal;
   RecoveryConfig recovery;
+  KeepingConfig keeping;
   SafetyConfig safety;
 };
 

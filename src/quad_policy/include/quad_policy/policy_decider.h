@@ -1,8 +1,9 @@
 // One decision of the learned policy: depth frame + odometry + goal -> preprocessing -> network ->
 // world-frame B-spline -> safety layer -> the trajectory to send: the policy's; when refused, the first
 // accepted plan of the recovery (the network asked again with the goal turned about the vehicle,
-// RecoveryConfig); else the stopping trajectory (refusal action stop). ROS-free; policy_node, the parity
-// replay tool and the benchmark all call Decide(). The Python twin is quad_il/inference/decider.py.
+// RecoveryConfig); else, with KeepingConfig, the plan sent before flown on; else the stopping trajectory
+// (refusal action stop). ROS-free; policy_node, the parity replay tool and the benchmark all call Decide().
+// The Python twin is quad_il/inference/decider.py.
 #pragma once
 
 #include <Eigen/Core>
@@ -29,6 +30,21 @@ struct RefusalConfig {
   double stop_max_decel_mps2 = 3.0;
   double stop_min_duration_s = 0.5;
 };
+
+// Keeping the plan sent before (docs/inference.md, "Keeping the plan"), as the expert flies on along its
+// trajectory and replans about every metre or when it sees a collision on it. A kept plan's rest, from the
+// decision's stamp on, must pass the test a recovery plan passes (RestIsClear, with at least
+// max(check_horizon_s, stop_min_duration_s) of it left); a stopping trajectory is never kept.
+// commit_s > 0: a plan the node sent is flown on, whatever the new decision, until it is commit_s old (sim
+// time); the network is asked on every frame, but its plan is sent only once the commitment ends or the rest
+// of the committed plan fails the test. on_refusal: a refused decision the recovery finds no plan for sends
+// nothing while the plan sent before passes the test; only when it fails too does the refusal action apply.
+struct KeepingConfig {
+  double commit_s = 0.0;
+  bool on_refusal = false;
+};
+// Throws std::invalid_argument naming the key and the value.
+void ValidateKeeping(const KeepingConfig& keeping);
 
 // On a refused plan the network is asked again with the goal direction turned about the vehicle's vertical
 // axis by each angle in turn (degrees, +: counter-clockwise seen from above); the first plan the safety
@@ -107,13 +123,18 @@ struct Decision {
   // Within recovery.final_approach_m of the goal: the trajectory straight to the goal, when the safety layer
   // accepted it (it is then sent instead of anything else).
   std::optional<UniformBspline> final_approach;
+  // KeepingConfig: the plan sent before, flown on (nothing is sent): committed (younger than commit_s) or, on
+  // a refusal the recovery could not mend (on_refusal), with its rest still clear.
+  std::optional<UniformBspline> kept;
+  bool committed = false;      // kept because its commitment had not ended (else kept on a refusal)
   std::vector<float> depth_x;  // network depth input (input_height x input_width)
   StateVector state_x{};       // state vector (EncodeState)
   std::vector<float> y;        // network output (training representation), every hypothesis
   DecisionTimings timings;
   bool accepted() const { return safety.accepted(); }
-  // The trajectory to send to the tracker: the final approach if there is one, else the recovery's plan if
-  // there is one, else the proposal if accepted, else the stopping trajectory (or none).
+  // The trajectory to send to the tracker: none when the plan sent before is kept, else the final approach if
+  // there is one, else the recovery's plan if there is one, else the proposal if accepted, else the stopping
+  // trajectory (or none).
   const UniformBspline* to_send() const;
 };
 
@@ -123,14 +144,17 @@ std::string RecoveryText(const Decision& d, int num_hypotheses);
 
 class PolicyDecider {
  public:
-  // Throws std::invalid_argument on an invalid safety, refusal or recovery configuration.
+  // Throws std::invalid_argument on an invalid safety, refusal, recovery or keeping configuration.
   PolicyDecider(std::shared_ptr<const TorchPolicy> policy, const SafetyConfig& safety,
-                const RefusalConfig& refusal, const RecoveryConfig& recovery = {});
+                const RefusalConfig& refusal, const RecoveryConfig& recovery = {},
+                const KeepingConfig& keeping = {});
 
   // Throws std::invalid_argument on invalid inputs (non-finite odometry or goal, empty depth). Decisions
-  // depend on the ones before only through the turning's count of stops in a row (Reset() clears it).
+  // depend on the ones before through the turning's count of stops in a row, the depth memory and the
+  // trajectory sent last (KeepingConfig); Reset() clears them.
   Decision Decide(const DecisionInputs& in);
-  // A new episode: forgets the stops in a row, the turning direction and the depth memory.
+  // A new episode: forgets the stops in a row, the turning direction, the depth memory and the trajectory
+  // sent last.
   void Reset();
 
   const VerdictCounts& counts() const { return counts_; }
@@ -138,6 +162,7 @@ class PolicyDecider {
   const SafetyConfig& safety_config() const { return safety_; }
   const RefusalConfig& refusal_config() const { return refusal_; }
   const RecoveryConfig& recovery_config() const { return recovery_; }
+  const KeepingConfig& keeping_config() const { return keeping_; }
   const DepthMemory& memory() const { return memory_; }
 
  private:
@@ -146,11 +171,13 @@ class PolicyDecider {
   SafetyConfig safety_;
   RefusalConfig refusal_;
   RecoveryConfig recovery_;
+  KeepingConfig keeping_;
   OutputDecoder decoder_;
   VerdictCounts counts_;
-  int stops_in_row_ = 0;  // consecutive decisions that sent the stopping trajectory
-  int turn_sign_ = 0;     // +1 left, -1 right, 0: not turning
-  DepthMemory memory_;    // earlier decision frames (SafetyConfig memory_frames), newest first
+  int stops_in_row_ = 0;                // consecutive decisions that sent the stopping trajectory
+  int turn_sign_ = 0;                   // +1 left, -1 right, 0: not turning
+  DepthMemory memory_;                  // earlier decision frames (SafetyConfig memory_frames), newest first
+  std::optional<UniformBspline> sent_;  // the plan the tracker flies (KeepingConfig); never a stop
 };
 
 }  // namespace quad_policy

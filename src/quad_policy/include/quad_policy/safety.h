@@ -120,8 +120,10 @@ DepthCollision FindDepthCollision(const std::vector<Eigen::Vector3d>& samples_wo
                                   int min_pixels, const DepthImageView& depth, const CameraModel& camera,
                                   const std::vector<DepthFrame>& memory = {});
 
-// Sample times j * sample_dt_s (j = 0, 1, ...) up to the check horizon, and the last time itself.
-std::vector<double> SafetySampleTimes(const UniformBspline& traj, const SafetyConfig& cfg);
+// Sample times from_s + j * sample_dt_s (j = 0, 1, ...) up to the check horizon after from_s (or the
+// trajectory's end), and that last time itself. from_s > 0 judges the rest of a trajectory (RestIsClear).
+std::vector<double> SafetySampleTimes(const UniformBspline& traj, const SafetyConfig& cfg,
+                                      double from_s = 0.0);
 
 // All checks in order: non-finite control points; velocity; acceleration; start far from the vehicle;
 // collision in the depth image (skipped when depth is null). The first failure is the verdict.
@@ -134,8 +136,19 @@ SafetyResult CheckTrajectory(const UniformBspline& traj, const Eigen::Vector3d& 
 // and projecting inside the image. The recovery's plans must pass this besides CheckTrajectory: a plan
 // turned away from the goal may leave the field of view, where the depth check cannot judge it. With a
 // memory, a sample a remembered frame shows counts as in view (that frame judges it).
+// from_s: judge the samples from that trajectory time on (SafetySampleTimes).
 bool TrajectoryInView(const UniformBspline& traj, const CameraModel& camera, const SafetyConfig& cfg,
-                      const std::vector<DepthFrame>& memory = {});
+                      const std::vector<DepthFrame>& memory = {}, double from_s = 0.0);
+
+// Whether the rest of a trajectory sent before (from the time now_s on) may still be flown: at least
+// min_rest_s of it is left, the vehicle is within max_start_error_m of where it should be now, and from now
+// up to the check horizon no sample enters what the depth frames show occupied (FindDepthCollision) or leaves
+// their view (TrajectoryInView): the test a recovery plan passes. Its velocity and acceleration were judged
+// when it was sent. The Python twin is quad_il.inference.safety.rest_is_clear.
+bool RestIsClear(const UniformBspline& traj, double now_s, double min_rest_s,
+                 const Eigen::Vector3d& p_world_vehicle, const DepthImageView& depth,
+                 const CameraModel& camera, const SafetyConfig& cfg,
+                 const std::vector<DepthFrame>& memory = {});
 
 // The smallest depth (along the optical axis, m) among the pixels that show a surface: -inf (nearer than the
 // camera's minimum range) counts as 0, NaN and +inf show none. +inf when no pixel shows a surface.

@@ -80,7 +80,8 @@ class PolicyNode {
     quad_policy::TuneMallocForInference();
     quad_policy::ConfigureTorchThreads(cfg_.num_threads);
     auto policy = std::make_shared<const quad_policy::TorchPolicy>(cfg_.policy_file);
-    decider_ = std::make_unique<quad_policy::PolicyDecider>(policy, cfg_.safety, cfg_.refusal, cfg_.recovery);
+    decider_ = std::make_unique<quad_policy::PolicyDecider>(policy, cfg_.safety, cfg_.refusal, cfg_.recovery,
+                                                            cfg_.keeping);
     const quad_policy::PolicyMeta& m = policy->meta();
     ROS_INFO(
         "policy_node: %s (input %dx%d, state %s, output %s %s, K = %d over %.2f s, network entry %s), "
@@ -373,6 +374,13 @@ class PolicyNode {
       Count("final_approach");
       out->reason += "; final approach: straight to the goal (not the network's plan)";
     }
+    if (d.kept) {
+      Count(d.committed ? "committed" : "kept");
+      char kept[112];
+      std::snprintf(kept, sizeof(kept), "; %s the plan sent %.2f s before (its rest is clear)",
+                    d.committed ? "committed to" : "kept", in.stamp_s - d.kept->start_time_s);
+      out->reason += kept;
+    }
     if (d.turn_rate_radps != 0.0) {
       Count("turning");
       char turn[96];
@@ -390,6 +398,8 @@ class PolicyNode {
       bspline_pub_.publish(msg);
       SendToTracker(msg);
       SetHovering(false);
+    } else if (d.kept) {
+      out->action = "keep";  // the tracker flies on along the plan sent before
     } else {
       out->action = "hover";
       if (!hovering) SetHovering(SwitchToHover());

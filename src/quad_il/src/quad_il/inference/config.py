@@ -28,6 +28,19 @@ class RefusalConfig(_Strict):
     stop_min_duration_s: float = Field(gt=0.0, allow_inf_nan=False)
 
 
+class KeepingConfig(_Strict):
+    """Keeping the plan sent before (docs/inference.md, "Keeping the plan"; C++ quad_policy::KeepingConfig). A
+    kept plan's rest must pass the test a recovery plan passes (safety.rest_is_clear, with at least
+    max(check_horizon_s, stop_min_duration_s) of it left); a stopping trajectory is never kept."""
+
+    # > 0: a plan the node sent is flown on, whatever the new decision, until it is this old (sim time) or its
+    # rest fails the test; the network is still asked on every decision. 0: off.
+    commit_s: float = Field(ge=0.0, allow_inf_nan=False)
+    # A refused decision the recovery finds no plan for sends nothing while the plan sent before passes the
+    # test; only when it fails too does the refusal action apply.
+    on_refusal: bool
+
+
 class SafetyConfig(_Strict):
     enabled: bool
     max_vel_mps: float = Field(gt=0.0, allow_inf_nan=False)
@@ -86,6 +99,7 @@ class PolicyNodeConfig(_Strict):
     send_to_tracker: bool
     refusal: RefusalConfig
     recovery: RecoveryConfig
+    keeping: KeepingConfig
     safety: SafetyConfig
 
     @model_validator(mode="after")

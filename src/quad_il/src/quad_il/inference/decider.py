@@ -3,9 +3,11 @@
 depth frame + odometry + goal -> preprocessing -> network -> world-frame B-spline started at the frame's stamp
 -> safety layer -> the trajectory to send: the policy's (with several hypotheses, the most confident one's);
 when refused, the first accepted plan of the recovery (the policy's other hypotheses in order of confidence,
-then the network asked again with the goal turned about the vehicle, `recovery.goal_yaw_offsets_deg`); else
-the stopping trajectory when the refusal action is `stop`. ROS-free: the rospy node, the parity test and the
-benchmark call `decide`."""
+then the network asked again with the goal turned about the vehicle, `recovery.goal_yaw_offsets_deg`); else,
+with `keeping.on_refusal`, nothing while the rest of the trajectory sent before is still clear; else the
+stopping trajectory when the refusal action is `stop`. With `keeping.commit_s`, a plan sent is flown on
+(nothing sent) while it is younger than that and its rest is clear. ROS-free: the rospy node, the parity test
+and the benchmark call `decide`."""
 
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from quad_il.inference.config import (
+    KeepingConfig,
     RecoveryConfig,
     RefusalConfig,
     SafetyConfig,
@@ -34,6 +37,7 @@ from quad_il.inference.safety import (
     VerdictCounts,
     check_trajectory,
     nearest_depth,
+    rest_is_clear,
     trajectory_in_view,
 )
 from quad_il.inference.trajectory import (
@@ -102,6 +106,10 @@ class Decision:
     # Within recovery.final_approach_m of the goal: the trajectory straight to the goal, when the safety layer
     # accepted it (it is then sent instead of anything else).
     final: UniformBspline | None = None
+    # KeepingConfig: the plan sent before, flown on (nothing is sent): committed (younger than commit_s) or,
+    # on a refusal the recovery could not mend (on_refusal), with its rest still clear.
+    kept: UniformBspline | None = None
+    committed: bool = False  # kept because its commitment had not ended (else kept on a refusal)
 
     @property
     def accepted(self) -> bool:
@@ -122,11 +130,15 @@ class Decision:
         return f"; {what} with the goal turned {yaw:g} deg, {hyp}"
 
     def to_send(self) -> UniformBspline | None:
+        if self.kept is not None:
+            return None
         if self.final is not None:
             return self.final
         if self.recovery is not None:
             return self.recovery
-        return self.proposed if self.accepted else self.stop
+        if self.accepted:
+            return self.proposed
+        return self.stop
 
 
 def turned_goal(p_world_body: FloatArray, goal_world: FloatArray, yaw_deg: float) -> FloatArray:
@@ -145,8 +157,10 @@ class PolicyDecider:
         safety: SafetyConfig,
         refusal: RefusalConfig,
         recovery: RecoveryConfig | None = None,
+        keeping: KeepingConfig | None = None,
     ) -> None:
         self.policy = policy
+        self.keeping = keeping if keeping is not None else KeepingConfig(commit_s=0.0, on_refusal=False)
         self.safety = safety
         self.refusal = refusal
         self.recovery = (
@@ -170,11 +184,14 @@ class PolicyDecider:
         self.stops_in_row = 0  # consecutive decisions that sent the stopping trajectory
         self.turn_sign = 0  # +1 left, -1 right, 0: not turning
         self.memory = DepthMemory(safety.memory_frames, safety.memory_spacing_s)
+        self.sent: UniformBspline | None = None  # the trajectory the tracker flies (KeepingConfig)
 
     def reset(self) -> None:
-        """A new episode: forgets the stops in a row, the turning direction and the depth memory."""
+        """A new episode: forgets the stops in a row, the turning direction, the depth memory and the
+        trajectory sent last."""
         self._end_stops()
         self.memory.clear()
+        self.sent = None
 
     def _end_stops(self) -> None:
         self.stops_in_row = 0
@@ -200,11 +217,40 @@ class PolicyDecider:
         t3 = time.perf_counter()
         mem = self.memory.frames  # the earlier frames, newest first (this one is added after the decision)
         result = check_trajectory(proposed, inp.p_world_body, inp.depth_m, inp.camera, self.safety, mem)
+        rest_clear: list[bool] = []  # the rest of the plan sent before, judged at most once (KeepingConfig)
+
+        def sent_rest_is_clear(sent: UniformBspline) -> bool:
+            if not rest_clear:
+                rest_clear.append(
+                    rest_is_clear(
+                        sent,
+                        inp.stamp_s,
+                        max(self.safety.check_horizon_s, self.refusal.stop_min_duration_s),
+                        inp.p_world_body,
+                        inp.depth_m,
+                        inp.camera,
+                        self.safety,
+                        mem,
+                    )
+                )
+            return rest_clear[0]
+
+        # A committed plan is flown on while it is younger than commit_s and its rest is clear: nothing else
+        # is tried (the network's plan is still computed, for the record and the timings).
+        kept = None
+        committed = False
+        if (
+            self.keeping.commit_s > 0.0
+            and self.sent is not None
+            and inp.stamp_s - self.sent.start_time_s < self.keeping.commit_s
+            and sent_rest_is_clear(self.sent)
+        ):
+            kept, committed = self.sent, True
         final = None
         to_goal = np.asarray(inp.goal_world, np.float64).reshape(3) - np.asarray(
             inp.p_world_body, np.float64
         ).reshape(3)
-        if float(np.linalg.norm(to_goal)) < self.recovery.final_approach_m:  # 0: off
+        if kept is None and float(np.linalg.norm(to_goal)) < self.recovery.final_approach_m:  # 0: off
             traj = final_approach(
                 inp.p_world_body,
                 inp.v_world,
@@ -237,7 +283,7 @@ class PolicyDecider:
                 proposed, inp.p_world_body, inp.depth_m, inp.camera, self.steer_safety, mem
             ).accepted
         )
-        if final is None and (not result.accepted or steering):
+        if kept is None and final is None and (not result.accepted or steering):
             # Yaw 0 (never a configured turn: those are non-zero) stands for the goal itself.
             for yaw in [0.0, *self.recovery.goal_yaw_offsets_deg]:
                 if yaw == 0.0:
@@ -266,10 +312,28 @@ class PolicyDecider:
                         break
                 if recovery is not None:
                     break
+        # Keeping the plan on a refusal: not recovered, the tracker flies on along the trajectory sent before
+        # while its rest from now on passes the test a recovery plan passes.
+        if (
+            self.keeping.on_refusal
+            and kept is None
+            and not result.accepted
+            and recovery is None
+            and final is None
+            and self.sent is not None
+            and sent_rest_is_clear(self.sent)
+        ):
+            kept = self.sent
         stop = None
         turn_rate = 0.0
         backoff = 0.0
-        if not result.accepted and recovery is None and final is None and self.refusal.action == "stop":
+        if (
+            not result.accepted
+            and recovery is None
+            and final is None
+            and kept is None
+            and self.refusal.action == "stop"
+        ):
             self.stops_in_row += 1
             n = self.recovery.turn_after_stops
             if n > 0 and self.stops_in_row >= n:
@@ -308,7 +372,7 @@ class PolicyDecider:
         self.memory.add(inp.stamp_s, inp.depth_m, inp.camera)
         t4 = time.perf_counter()
         self.counts.add(result.verdict)
-        return Decision(
+        decision = Decision(
             safety=result,
             proposed=proposed,
             stop=stop,
@@ -325,4 +389,11 @@ class PolicyDecider:
             turn_rate_radps=turn_rate,
             turn_backoff_m=backoff,
             final=final,
+            kept=kept,
+            committed=committed,
         )
+        # The plan the tracker now flies; a stopping trajectory is never kept (the next refusal stops anew).
+        if kept is None:
+            sent = decision.to_send()
+            self.sent = sent if sent is not None and sent is not decision.stop else None
+        return decision

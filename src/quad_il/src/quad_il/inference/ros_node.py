@@ -73,7 +73,7 @@ class PolicyNode:
         self.odom_period_s = odom_period_s
         configure_threads(cfg.num_threads)
         policy = LoadedPolicy(cfg.policy_file)
-        self.decider = PolicyDecider(policy, cfg.safety, cfg.refusal, cfg.recovery)
+        self.decider = PolicyDecider(policy, cfg.safety, cfg.refusal, cfg.recovery, cfg.keeping)
         m = policy.meta
         entry = "forward_net" if policy.has_forward_net else "forward_prepared"
         rospy.loginfo(
@@ -322,6 +322,12 @@ class PolicyNode:
         if d.final is not None:
             self._count("final_approach")
             out.reason += "; final approach: straight to the goal (not the network's plan)"
+        if d.kept is not None:
+            self._count("committed" if d.committed else "kept")
+            out.reason += (
+                f"; {'committed to' if d.committed else 'kept'} the plan sent "
+                f"{stamp - d.kept.start_time_s:.2f} s before (its rest is clear)"
+            )
         if d.turn_rate_radps != 0.0:
             self._count("turning")
             out.reason += (
@@ -339,6 +345,8 @@ class PolicyNode:
             self.bspline_pub.publish(bspline)
             self._send_to_tracker(bspline)
             self._set_hovering(False)
+        elif d.kept is not None:
+            out.action = "keep"  # the tracker flies on along the plan sent before
         else:
             out.action = "hover"
             if not hovering:

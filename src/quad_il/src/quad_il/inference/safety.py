@@ -222,25 +222,32 @@ def nearest_depth(depth_m: NDArray[np.float32]) -> float:
     return float(max(np.min(d), 0.0)) if d.size else math.inf
 
 
-def safety_sample_times(traj: UniformBspline, cfg: SafetyConfig) -> FloatArray:
-    duration = traj.duration_s
+def safety_sample_times(traj: UniformBspline, cfg: SafetyConfig, from_s: float = 0.0) -> FloatArray:
+    """Trajectory times from_s + j * sample_dt_s (j = 0, 1, ...) up to the check horizon after from_s (or the
+    trajectory's end), and that last time itself (C++ SafetySampleTimes). from_s > 0 judges the rest of a
+    trajectory from that time on (PolicyDecider's kept plan)."""
+    duration = traj.duration_s - from_s
     horizon = min(cfg.check_horizon_s, duration) if cfg.check_horizon_s > 0.0 else duration
     n = math.floor(horizon / cfg.sample_dt_s + 1e-9)
-    times = [j * cfg.sample_dt_s for j in range(n + 1)]
-    if times[-1] < horizon - 1e-9:
-        times.append(horizon)
+    times = [from_s + j * cfg.sample_dt_s for j in range(n + 1)]
+    if times[-1] < from_s + horizon - 1e-9:
+        times.append(from_s + horizon)
     return np.asarray(times, dtype=np.float64)
 
 
 def trajectory_in_view(
-    traj: UniformBspline, camera: CameraModel, cfg: SafetyConfig, memory: Sequence[DepthFrame] = ()
+    traj: UniformBspline,
+    camera: CameraModel,
+    cfg: SafetyConfig,
+    memory: Sequence[DepthFrame] = (),
+    from_s: float = 0.0,
 ) -> bool:
     """Whether every sample up to the check horizon whose sphere does not hold the camera centre has its
     centre in front of the camera and projecting inside the image (the recovery's plans must pass this
     besides check_trajectory: a plan turned away from the goal may leave the view, where depth cannot judge
     it). With a memory, a sample shown by a remembered frame instead counts as in view (that frame judges
-    it)."""
-    points = traj.position(safety_sample_times(traj, cfg))
+    it). from_s: judge the samples from that trajectory time on (safety_sample_times)."""
+    points = traj.position(safety_sample_times(traj, cfg, from_s))
     cameras = [camera] + [f.camera for f in memory]
     cams = [_to_camera(c, points) for c in cameras]
     r2 = cfg.vehicle_radius_m * cfg.vehicle_radius_m
@@ -326,6 +333,36 @@ def check_trajectory(
                 t,
             )
     return SafetyResult(SafetyVerdict.ACCEPTED, "accepted")
+
+
+def rest_is_clear(
+    traj: UniformBspline,
+    now_s: float,
+    min_rest_s: float,
+    p_world_vehicle: FloatArray,
+    depth_m: NDArray[np.float32],
+    camera: CameraModel,
+    cfg: SafetyConfig,
+    memory: Sequence[DepthFrame] = (),
+) -> bool:
+    """Whether the rest of a trajectory sent before (from the time now_s on) may still be flown: at least
+    min_rest_s of it is left, the vehicle is within max_start_error_m of where it should be now, and from now
+    up to the check horizon no sample enters what the depth frames show occupied or leaves their view (the
+    test a recovery plan passes). Its velocity and acceleration were judged when it was sent (C++
+    RestIsClear)."""
+    elapsed = now_s - traj.start_time_s
+    if not (math.isfinite(elapsed) and elapsed >= 0.0 and traj.duration_s - elapsed >= min_rest_s):
+        return False
+    p = np.asarray(p_world_vehicle, dtype=np.float64).reshape(3)
+    if not float(np.linalg.norm(traj.position(elapsed)[0] - p)) <= cfg.max_start_error_m:
+        return False
+    if not cfg.enabled:
+        return True
+    times = safety_sample_times(traj, cfg, elapsed)
+    hit = find_depth_collision(
+        traj.position(times), cfg.vehicle_radius_m, cfg.collision_min_pixels, depth_m, camera, memory
+    )
+    return not hit.collides and trajectory_in_view(traj, camera, cfg, memory, elapsed)
 
 
 @dataclass
