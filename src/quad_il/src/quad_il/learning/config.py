@@ -46,6 +46,10 @@ class DataConfig(_Strict):
     val_fraction: float = Field(0.1, gt=0.0, lt=1.0)
     train_episode_fraction: float = Field(1.0, gt=0.0, le=1.0)
     num_workers: int = Field(1, ge=0, le=16)
+    # Share of training samples seen in a mirror each epoch (preprocessing.mirror_about_heading: the depth
+    # image flipped left to right, state, goal and plan reflected about the heading plane); 0 = off. Which
+    # samples is a function of (run.seed, epoch, sample), the same with any number of processes.
+    mirror_probability: float = Field(0.0, ge=0.0, le=1.0)
     hash_files: bool = True
     shards: ShardConfig = ShardConfig()
 

@@ -45,6 +45,60 @@ def local_to_world_points(points_local: Tensor, p_world_body: Tensor, yaw: Tenso
     return torch.stack([x, y, points_local[..., 2]], dim=-1) + p_world_body.unsqueeze(1)
 
 
+def _quaternion_product(a: Tensor, b: Tensor) -> Tensor:
+    """Hamilton product a b of (..., 4) xyzw quaternions."""
+    ax, ay, az, aw = a.unbind(-1)
+    bx, by, bz, bw = b.unbind(-1)
+    return torch.stack(
+        [
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz,
+        ],
+        dim=-1,
+    )
+
+
+def mirror_about_heading(
+    p_world_body: Tensor,
+    v_world: Tensor,
+    q_world_body: Tensor,
+    goal_world: Tensor,
+    points_world: Tensor | None = None,
+) -> tuple[Tensor, Tensor, Tensor, Tensor | None]:
+    """The sample seen in a mirror: reflection about the vertical plane through p_world_body along the
+    vehicle's heading (M = R_z(yaw) S R_z(-yaw), S = diag(1, -1, 1)). The world is mirror-symmetric under it
+    (gravity is vertical; the camera sits on the body's x axis, looking along it, with its principal point at
+    the image's centre), so the reflected state, goal and plan make a valid sample whose depth image is the
+    original flipped left to right (training's `data.mirror_probability`).
+
+    p (B,3) stays; v' = M v; goal' = p + M (goal - p); points (B,K,3)' = p + M (points - p); the attitude
+    R = R_z(yaw) R_l becomes M R S = R_z(yaw) S R_l S: the yaw is kept and the roll-pitch part R_l is
+    mirrored, as a quaternion q_l = (x, y, z, w) -> (-x, y, -z, w). Mirroring twice gives the sample back.
+    Returns (v', q', goal', points') (points' None without points)."""
+    yaw = yaw_from_quaternion(q_world_body)
+    n = torch.stack([-torch.sin(yaw), torch.cos(yaw), torch.zeros_like(yaw)], dim=-1)  # (B, 3): M = I - 2nn^T
+
+    def reflect(x: Tensor) -> Tensor:  # (B, ..., 3), n broadcast over the middle dimensions
+        nb = n.view(n.shape[0], *([1] * (x.dim() - 2)), 3)
+        return x - 2.0 * (x * nb).sum(-1, keepdim=True) * nb
+
+    zeros = torch.zeros_like(yaw)
+    q_yaw = torch.stack([zeros, zeros, torch.sin(0.5 * yaw), torch.cos(0.5 * yaw)], dim=-1)
+    q_yaw_inv = q_yaw * q_yaw.new_tensor([-1.0, -1.0, -1.0, 1.0])
+    q_l = _quaternion_product(q_yaw_inv, q_world_body)
+    q_l = q_l * q_l.new_tensor([-1.0, 1.0, -1.0, 1.0])
+    q = _quaternion_product(q_yaw, q_l)
+    goal = p_world_body + reflect(goal_world - p_world_body)
+    points = (
+        None
+        if points_world is None
+        else p_world_body.unsqueeze(1) + reflect(points_world - p_world_body.unsqueeze(1))
+    )
+    return reflect(v_world), q, goal, points
+
+
 def _canonical_unit_quaternion(q: Tensor) -> Tensor:
     """Unit quaternion with w >= 0 (q and -q are the same rotation; one sign makes the input a function)."""
     q = q / torch.linalg.vector_norm(q, dim=-1, keepdim=True).clamp_min(1e-12)

@@ -41,6 +41,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from numpy.typing import NDArray
 from torch import Tensor, nn
 from tqdm import tqdm
 
@@ -75,7 +76,7 @@ from quad_il.learning.distributed import (
 from quad_il.learning.export import export_torchscript, policy_metadata
 from quad_il.learning.losses import batch_loss, eil_per_sample, per_sample_loss, wta_per_sample
 from quad_il.learning.model import Policy, build_policy
-from quad_il.learning.preprocessing import DepthPreprocessor
+from quad_il.learning.preprocessing import DepthPreprocessor, mirror_about_heading
 from quad_il.learning.runinfo import dataset_manifest, software_info
 from quad_il.learning.schedulers import build_scheduler
 
@@ -273,6 +274,19 @@ class Trainer:
             self.targets = self.policy.encode_target(
                 self.data.ctrl_world, self.data.p_world_body, self.data.q_world_body
             ).contiguous()
+            # data.mirror_probability: every sample's mirrored target, encoded once (the mirror keeps p, yaw).
+            self.mirrored_targets: Tensor | None = None
+            if cfg.data.mirror_probability > 0.0:
+                _, q_m, _, ctrl_m = mirror_about_heading(
+                    self.data.p_world_body,
+                    self.data.v_world,
+                    self.data.q_world_body,
+                    self.data.goal_world,
+                    self.data.ctrl_world,
+                )
+                self.mirrored_targets = self.policy.encode_target(
+                    ctrl_m, self.data.p_world_body, q_m
+                ).contiguous()
         o = cfg.optim
         self.val_loader: BatchLoader | None
         if not dist.enabled:
@@ -511,6 +525,36 @@ class Trainer:
             batch.target.to(d),
         )
 
+    def _mirror_mask(self, epoch: int) -> NDArray[np.bool_] | None:
+        """data.mirror_probability: which samples are seen in a mirror this epoch, a function of (run.seed,
+        epoch, sample index) only (the same with any batch order, worker or process count)."""
+        prob = self.cfg.data.mirror_probability
+        if prob <= 0.0:
+            return None
+        return np.random.default_rng([self.cfg.run.seed, epoch, 0x4D4952]).random(len(self.data)) < prob
+
+    def _mirrored(self, batch: Batch, mirror: NDArray[np.bool_]) -> Batch:
+        """The batch with its selected samples replaced by their mirror images (mirror_about_heading): depth
+        flipped left to right, velocity, attitude and goal reflected, the mirrored target."""
+        sel = torch.from_numpy(mirror[batch.indices])
+        if not bool(sel.any()):
+            return batch
+        if self.mirrored_targets is None:
+            raise RuntimeError("mirrored targets are built whenever data.mirror_probability > 0")
+        v_m, q_m, goal_m, _ = mirror_about_heading(
+            batch.p_world_body, batch.v_world, batch.q_world_body, batch.goal_world
+        )
+        col = sel.view(-1, 1)
+        return Batch(
+            batch.indices,
+            torch.where(sel.view(-1, 1, 1, 1), batch.depth_x.flip(-1), batch.depth_x),
+            batch.p_world_body,
+            torch.where(col, v_m, batch.v_world),
+            torch.where(col, q_m, batch.q_world_body),
+            torch.where(col, goal_m, batch.goal_world),
+            torch.where(col, self.mirrored_targets[torch.from_numpy(batch.indices)], batch.target),
+        )
+
     def _train_epoch(self, epoch: int) -> float:
         self.policy.train()
         o = self.cfg.optim
@@ -528,7 +572,10 @@ class Trainer:
             dynamic_ncols=True,
         )
         forward = self._ddp if self._ddp is not None else self.policy.forward_prepared
+        mirror = self._mirror_mask(epoch)
         for batch in bar:
+            if mirror is not None:
+                batch = self._mirrored(batch, mirror)
             batch = self._to_device(batch)
             x = batch.depth_x
             if o.channels_last:
