@@ -155,6 +155,8 @@ def test_the_report_has_the_table_plots_and_bench_lines(
                         "steered": 7,
                         "turning": 3,
                         "final_approach": 5,
+                        "kept": 2,
+                        "committed": 4,
                     }
                     if c == "cpp"
                     else {},
@@ -171,8 +173,8 @@ def test_the_report_has_the_table_plots_and_bench_lines(
     assert "| expert (fast_planner) | 2 | 100 % | 0 % |" in text
     assert "| policy, C++ (LibTorch) | 2 | 0 % | 100 % |" in text
     assert "not run: quad_il/policy_node.py is not built" in text
-    assert "refusals (recovered) | steered | turning | final approach |" in text
-    assert text.count("| 4 (2) | 14 | 6 | 10 |") == 1  # the C++ row, 2 episodes
+    assert "refusals (recovered) | steered | turning | final approach | kept (committed) |" in text
+    assert text.count("| 4 (2) | 14 | 6 | 10 | 12 (8) |") == 1  # the C++ row, 2 episodes
     for png in ("outcomes.png", "latency.png", "trajectories.png"):
         assert (tmp_path / png).stat().st_size > 0 and f"({png})" in text
     out = capsys.readouterr().out.splitlines()

@@ -92,6 +92,8 @@ class ControllerSummary:
     final_approach: int = (
         0  # decisions that sent the trajectory straight to the goal (recovery.final_approach_m)
     )
+    kept: int = 0  # decisions that sent nothing, the plan sent before flown on (config keeping), all kinds
+    committed: int = 0  # of those, kept because their commitment had not ended (keeping.commit_s)
 
 
 def summarise(controller: str, results: Sequence[EpisodeResult]) -> ControllerSummary:
@@ -126,4 +128,6 @@ def summarise(controller: str, results: Sequence[EpisodeResult]) -> ControllerSu
         steered=sum(r.counts.get("steered", 0) for r in rs),
         turning=sum(r.counts.get("turning", 0) for r in rs),
         final_approach=sum(r.counts.get("final_approach", 0) for r in rs),
+        kept=sum(r.counts.get("kept", 0) + r.counts.get("committed", 0) for r in rs),
+        committed=sum(r.counts.get("committed", 0) for r in rs),
     )

@@ -196,8 +196,9 @@ def write_report(
         "",
         "| controller | episodes | success | collision | timeout | reset/take-off failed | mean time to goal "
         "(s) | mean path length (m) | min clearance (m) | median min clearance (m) | decision ms median | "
-        "decision ms p99 | decisions | refusals (recovered) | steered | turning | final approach |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "decision ms p99 | decisions | refusals (recovered) | steered | turning | final approach | "
+        "kept (committed) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for c, s in summaries.items():
         lines.append(
@@ -207,10 +208,10 @@ def write_report(
             f"{_fmt(s.mean_path_length_m, 1)} | {_fmt(s.min_clearance_m)} | "
             f"{_fmt(s.median_min_clearance_m)} | {_fmt(s.decision_ms_median, 3)} | "
             f"{_fmt(s.decision_ms_p99, 3)} | {s.decisions} | {s.refusals} ({s.recovered}) | {s.steered} | "
-            f"{s.turning} | {s.final_approach} |"
+            f"{s.turning} | {s.final_approach} | {s.kept} ({s.committed}) |"
         )
     for c, why in skipped.items():
-        lines.append(f"| {NAMES.get(c, c)} | not run: {why} ||||||||||||||||")
+        lines.append(f"| {NAMES.get(c, c)} | not run: {why} |||||||||||||||||")
     lines += [
         "",
         "Success, collision and timeout are shares of all episodes; time to goal and path length are means "
@@ -223,7 +224,9 @@ def write_report(
         "replaced by a turned goal's plan that keeps `recovery.steer_clearance_m` from what the camera sees. "
         "Turning: refused decisions whose stopping trajectory turned the vehicle in place "
         "(`recovery.turn_after_stops`; they stay counted as refusals). Final approach: decisions that sent "
-        "the trajectory straight to the goal instead (`recovery.final_approach_m`; not learned).",
+        "the trajectory straight to the goal instead (`recovery.final_approach_m`; not learned). Kept: "
+        "decisions that sent nothing while the plan sent before flew on (config `keeping`); committed: of "
+        "those, the ones kept because the plan was younger than `keeping.commit_s`.",
         "",
     ]
     if summaries:
