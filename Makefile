@@ -3,7 +3,7 @@
 #   make test    the whole test suite (lint, gtest, rostest, pytest) with a summary line
 #   make build   idempotent set-up (apt, .venv, pip) + catkin build
 #   make eval POLICY=runs/x/policy.ts [SEEDS=9000-9019] [EPISODES=20] [DENSITY=] [CONTROLLERS=expert,py,cpp] [EVAL_OUT=results/eval]
-#             [POLICY_CONFIG=config/policy_recovery.yaml]
+#             [POLICY_CONFIG=config/policy_keep.yaml]
 #                closed-loop evaluation of expert, Python and C++ policy on held-out worlds (docs/inference.md)
 #   make shell   a shell with the workspace sourced
 #   make bench-<component>   BENCH lines of one component (sim, tracker, planner, collector, train, inference, scale)

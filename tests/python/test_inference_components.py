@@ -245,6 +245,18 @@ def test_the_repository_config_loads_and_errors_name_the_key(tmp_path: Path) -> 
     r10 = load_policy_config(CONFIG.with_name("policy_recovery_r10.yaml"))
     assert r10.replan_rate_hz == 10.0 and rec.replan_rate_hz == 0.0
     assert r10.model_copy(update={"replan_rate_hz": 0.0}) == rec
+    # make eval's default differs from the 10 Hz variant only in the final approach and keeping the plan.
+    keep = load_policy_config(CONFIG.with_name("policy_keep.yaml"))
+    assert keep.recovery.final_approach_m == 1.5 and keep.keeping.commit_s == 0.3 and keep.keeping.on_refusal
+    assert (
+        keep.model_copy(
+            update={
+                "recovery": keep.recovery.model_copy(update={"final_approach_m": 0.0}),
+                "keeping": r10.keeping,
+            }
+        )
+        == r10
+    )
     tree = yaml.safe_load(CONFIG.read_text())
     typo = copy.deepcopy(tree)
     typo["safety"]["max_vel_mp"] = 3.0

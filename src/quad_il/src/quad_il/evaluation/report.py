@@ -192,7 +192,8 @@ def write_report(
         f"{len(specs)} episodes on world seeds {sorted({s.seed for s in specs})}, box density "
         f"{options.get('density') or 'of the sim config'}, start/goal {options.get('min_distance_m')}-"
         f"{options.get('max_distance_m')} m apart, episode timeout {options.get('episode_timeout_s')} s (sim "
-        f"time), simulator in lockstep. Policy: `{options.get('policy') or '-'}`.",
+        f"time), simulator in lockstep. Policy: `{options.get('policy') or '-'}`, node config "
+        f"`{options.get('policy_config') or '-'}`.",
         "",
         "| controller | episodes | success | collision | timeout | reset/take-off failed | mean time to goal "
         "(s) | mean path length (m) | min clearance (m) | median min clearance (m) | decision ms median | "

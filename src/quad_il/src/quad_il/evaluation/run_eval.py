@@ -41,6 +41,9 @@ from quad_il.tools.ports import free_port
 
 ROOT = Path(os.environ.get("QUAD_IL_ROOT") or Path(__file__).resolve().parents[5])
 CONTROLLERS = ("expert", "py", "cpp")
+# The policy nodes' config when none is given: the recovery at 10 Hz, the final approach and the plan kept
+# (docs/inference.md, "Keeping the plan"; docs/RESULTS.md).
+DEFAULT_POLICY_CONFIG = ROOT / "config" / "policy_keep.yaml"
 # The FrameAck consumer of each controller (config/policy.yaml lockstep_consumer; planner.launch's default).
 CONSUMER = {"expert": "fast_planner", "py": "policy", "cpp": "policy"}
 RUNNER_CONSUMER = "eval_runner"  # the episode runner's own FrameAck consumer name
@@ -294,7 +297,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=str(ROOT / "results" / "eval"))
     ap.add_argument("--sim-config", default=str(ROOT / "config" / "sim.yaml"))
     ap.add_argument(
-        "--policy-config", default="", help="policy node config for py and cpp (default: config/policy.yaml)"
+        "--policy-config",
+        default=str(DEFAULT_POLICY_CONFIG),
+        help="policy node config for py and cpp (default: config/policy_keep.yaml)",
     )
     ap.add_argument("--episode-timeout-s", type=float, default=60.0, help="sim time per episode")
     ap.add_argument("--wall-timeout-s", type=float, default=7200.0, help="wall time per controller")
@@ -350,7 +355,7 @@ def _run(args: argparse.Namespace, write_report: Callable[..., Path]) -> int:
             from quad_il.inference.config import PolicyConfigError, load_policy_config
 
             try:
-                load_policy_config(args.policy_config or ROOT / "config" / "policy.yaml")
+                load_policy_config(args.policy_config or DEFAULT_POLICY_CONFIG)
             except PolicyConfigError as e:
                 raise EvalError(f"--policy-config: {e}") from None
         out = Path(args.out).resolve()  # the nodes run in ROS_HOME: every path handed to them is absolute
