@@ -838,6 +838,16 @@ def test_the_decider_flies_the_final_approach_near_the_goal_only_when_it_is_clea
     assert d.final is None and d.to_send() is d.stop
 
 
+def _assert_edit_refused(tmp_path: Path, old: str, new: str, message: str) -> None:
+    """The repository's policy config with `old` replaced by `new` is refused with a matching error."""
+    bad = tmp_path / "policy.yaml"
+    text = CONFIG.read_text()
+    assert old in text
+    bad.write_text(text.replace(old, new))
+    with pytest.raises(PolicyConfigError, match=message):
+        load_policy_config(bad)
+
+
 @pytest.mark.parametrize(
     ("old", "new", "message"),
     [
@@ -856,12 +866,7 @@ def test_the_decider_flies_the_final_approach_near_the_goal_only_when_it_is_clea
 )
 def test_final_approach_config_errors_name_the_key(tmp_path: Path, old: str, new: str, message: str) -> None:
     assert load_policy_config(CONFIG).recovery.final_approach_m == 0.0  # off in the repository's config
-    bad = tmp_path / "policy.yaml"
-    text = CONFIG.read_text()
-    assert old in text
-    bad.write_text(text.replace(old, new))
-    with pytest.raises(PolicyConfigError, match=message):
-        load_policy_config(bad)
+    _assert_edit_refused(tmp_path, old, new, message)
 
 
 @pytest.mark.parametrize(
@@ -876,9 +881,4 @@ def test_final_approach_config_errors_name_the_key(tmp_path: Path, old: str, new
 def test_keeping_config_errors_name_the_key(tmp_path: Path, old: str, new: str, message: str) -> None:
     keeping = load_policy_config(CONFIG).keeping
     assert keeping.commit_s == 0.0 and not keeping.on_refusal  # off in the repository's config
-    bad = tmp_path / "policy.yaml"
-    text = CONFIG.read_text()
-    assert old in text
-    bad.write_text(text.replace(old, new))
-    with pytest.raises(PolicyConfigError, match=message):
-        load_policy_config(bad)
+    _assert_edit_refused(tmp_path, old, new, message)
