@@ -142,6 +142,18 @@ class ImitationLearnerBase(abc.ABC):
         return {}
 
     # ---- helpers ----
+    def _without_collision_window(
+        self, records: list[Record], outcome: EpisodeOutcome, window_s: float
+    ) -> list[Record]:
+        """An episode's records without those of its last window_s before a collision (the labels that led
+        into it), counted in stats.dropped_collision; all of them when it did not collide."""
+        if not outcome.collided or outcome.collision_time_s is None:
+            return records
+        cutoff = outcome.collision_time_s - window_s
+        kept = [r for r in records if r.obs.stamp_s < cutoff]
+        self.stats.dropped_collision += len(records) - len(kept)
+        return kept
+
     def _record(
         self,
         obs: Observation,
@@ -368,11 +380,7 @@ class DARTLearner(ImitationLearnerBase):
 
     def _finish_episode(self, outcome: EpisodeOutcome) -> Sequence[Record]:
         records, self._records = self._records, []
-        if outcome.collided and outcome.collision_time_s is not None:
-            cutoff = outcome.collision_time_s - self.cfg.collision_window_s
-            before = len(records)
-            records = [r for r in records if r.obs.stamp_s < cutoff]
-            self.stats.dropped_collision += before - len(records)
+        records = self._without_collision_window(records, outcome, self.cfg.collision_window_s)
         return records
 
 
@@ -729,11 +737,7 @@ class MegaDAggerLearner(_GatedLearner):
     def _finish_episode(self, outcome: EpisodeOutcome) -> Sequence[Record]:
         records = self._episode_records
         self._episode_records = []
-        if outcome.collided and outcome.collision_time_s is not None:
-            cutoff = outcome.collision_time_s - self.cfg.collision_window_s
-            before = len(records)
-            records = [r for r in records if r.obs.stamp_s < cutoff]
-            self.stats.dropped_collision += before - len(records)
+        records = self._without_collision_window(records, outcome, self.cfg.collision_window_s)
         res = resolve_conflicts(records, self.cfg.conflict)
         self.stats.dropped_conflict += len(res.dropped)
         self.last_resolution = res
