@@ -2,8 +2,9 @@
 #   make demo    the main job end to end on the default configuration
 #   make test    the whole test suite (lint, gtest, rostest, pytest) with a summary line
 #   make build   idempotent set-up (apt, .venv, pip) + catkin build
-#   make eval POLICY=runs/x/policy.ts [SEEDS=9000-9019] [EPISODES=20] [DENSITY=] [CONTROLLERS=expert,py,cpp] [EVAL_OUT=results/eval]
-#             [POLICY_CONFIG=config/policy_keep.yaml]
+#   make eval POLICY=runs/x/policy.ts [SET=dev|dev_dense|test|test_dense | SEEDS=9000-9019 EPISODES=20 DENSITY=]
+#             [TIER=bare|safety|shield] [CONTROLLERS=expert,py,cpp] [EVAL_OUT=results/eval]
+#             [POLICY_CONFIG=config/policy_keep.yaml] [FORCE_NEW=1]
 #                closed-loop evaluation of expert, Python and C++ policy on held-out worlds (docs/inference.md)
 #   make shell   a shell with the workspace sourced
 #   make bench-<component>   BENCH lines of one component (sim, tracker, planner, collector, train, inference, scale)
@@ -23,17 +24,22 @@ test: build
 demo: build
 	@bash scripts/demo.sh
 
-SEEDS ?= 9000-9019
-EPISODES ?= 20
+# Without SET: SEEDS 9000-9019, EPISODES 20 and the sim config's density (run_eval's defaults).
+SET ?=
+SEEDS ?=
+EPISODES ?=
 DENSITY ?=
+TIER ?= shield
 CONTROLLERS ?= expert,py,cpp
 EVAL_OUT ?= results/eval
 POLICY_CONFIG ?=
+FORCE_NEW ?=
 eval: build
-	@test -n "$(POLICY)" || { echo "make eval: POLICY=<exported policy.ts> is required (a training run's policy.ts)" >&2; exit 2; }
-	@source scripts/env.sh && python -m quad_il.evaluation.run_eval --policy "$(POLICY)" --seeds "$(SEEDS)" \
-	  --episodes "$(EPISODES)" --controllers "$(CONTROLLERS)" --out "$(EVAL_OUT)" $(if $(DENSITY),--density $(DENSITY),) \
-	  $(if $(POLICY_CONFIG),--policy-config "$(POLICY_CONFIG)",)
+	@test -n "$(POLICY)" || test "$(CONTROLLERS)" = expert || { echo "make eval: POLICY=<exported policy.ts> is required (a training run's policy.ts) unless CONTROLLERS=expert" >&2; exit 2; }
+	@source scripts/env.sh && python -m quad_il.evaluation.run_eval --policy "$(POLICY)" --tier "$(TIER)" \
+	  --controllers "$(CONTROLLERS)" --out "$(EVAL_OUT)" $(if $(SET),--set $(SET),) $(if $(SEEDS),--seeds "$(SEEDS)",) \
+	  $(if $(EPISODES),--episodes $(EPISODES),) $(if $(DENSITY),--density $(DENSITY),) \
+	  $(if $(POLICY_CONFIG),--policy-config "$(POLICY_CONFIG)",) $(if $(FORCE_NEW),--force-new,)
 
 bench-%: build
 	@bash scripts/bench.sh $*

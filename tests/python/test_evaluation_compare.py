@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from quad_il.collection.episodes import EpisodeSpec
-from quad_il.evaluation.compare import CompareError, compare, main, mcnemar_exact_p
+from quad_il.evaluation.compare import CompareError, compare, main
 from quad_il.evaluation.episodes import EpisodeResult, append_result, write_episodes
 
 SPECS = [EpisodeSpec(i, 9000 + i, (0.0, float(i), 1.5), 0.0, (10.0, float(i), 1.5)) for i in range(4)]
@@ -20,15 +20,6 @@ def _run(d: Path, outcomes: list[str], shifts: list[float], specs: list[EpisodeS
         traj = [[0.1 * k, shift + 0.5 * k, 0.0, 1.5] for k in range(5)]
         append_result(d / "cpp.jsonl", EpisodeResult("cpp", s.index, s.seed, outcome, "", trajectory=traj))
     return d
-
-
-def test_mcnemar_exact_p_against_hand_computed_binomial_tails() -> None:
-    assert mcnemar_exact_p(0, 0) == 1.0
-    assert mcnemar_exact_p(0, 6) == pytest.approx(2 / 64)  # 2 * C(6,0) / 2^6
-    assert mcnemar_exact_p(5, 1) == pytest.approx(2 * (1 + 6) / 64)
-    assert mcnemar_exact_p(3, 3) == 1.0  # capped
-    with pytest.raises(ValueError, match=">= 0"):
-        mcnemar_exact_p(-1, 2)
 
 
 def test_pairs_episodes_and_counts_identical_changed_gained_and_lost(tmp_path: Path) -> None:

@@ -11,7 +11,7 @@ from test_imitation_dataset import make_records
 
 from quad_il.collection.episodes import EpisodeSpec
 from quad_il.evaluation.episodes import EpisodeResult, append_result, read_results, write_episodes
-from quad_il.imitation.compare import failure_modes, main, wilson_interval
+from quad_il.imitation.compare import failure_modes, main
 from quad_il.imitation.dataset import write_episode
 
 
@@ -77,15 +77,6 @@ def test_failure_modes_from_trajectories_goals_and_refusals(tmp_path: Path) -> N
         in (tmp_path / "cmp" / "comparison.md").read_text()
     )
     assert math.isnan(failure_modes(read_results(ev / "cpp.jsonl"), tmp_path / "none.json")[0])
-
-
-def test_wilson_interval_against_hand_computed_values() -> None:
-    # 2 of 10: p = 0.2, z^2 = 3.8416; centre = (0.2 + 0.19208) / 1.38416 = 0.28327,
-    # half = 1.96 / 1.38416 * sqrt(0.016 + 0.0096040) = 0.22664
-    lo, hi = wilson_interval(2, 10)
-    assert lo == pytest.approx(0.0567, abs=1e-4) and hi == pytest.approx(0.5098, abs=1e-4)
-    assert wilson_interval(0, 10)[0] == 0.0 and wilson_interval(10, 10)[1] == 1.0
-    assert all(math.isnan(x) for x in wilson_interval(0, 0))
 
 
 def test_bad_arguments_are_named(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

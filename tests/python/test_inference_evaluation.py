@@ -170,8 +170,9 @@ def test_the_report_has_the_table_plots_and_bench_lines(
         {"policy": "p.ts", "episode_timeout_s": 60},
     )
     text = report.read_text()
-    assert "| expert (fast_planner) | 2 | 100 % | 0 % |" in text
-    assert "| policy, C++ (LibTorch) | 2 | 0 % | 100 % |" in text
+    assert "| expert (fast_planner) | - | 2 | 100 % [34-100] | 0 % [0-66] |" in text
+    assert "| policy, C++ (LibTorch) | shield | 2 | 0 % [0-66] | 100 % [34-100] |" in text
+    assert "Not pinned" in text  # no pin given: the report says so
     assert "not run: quad_il/policy_node.py is not built" in text
     assert "refusals (recovered) | steered | turning | final approach | kept (committed) |" in text
     assert text.count("| 4 (2) | 14 | 6 | 10 | 12 (8) |") == 1  # the C++ row, 2 episodes
@@ -179,9 +180,9 @@ def test_the_report_has_the_table_plots_and_bench_lines(
         assert (tmp_path / png).stat().st_size > 0 and f"({png})" in text
     out = capsys.readouterr().out.splitlines()
     assert "BENCH eval_expert_success_rate 1.0000 ratio" in out
-    assert "BENCH eval_cpp_collision_rate 1.0000 ratio" in out
+    assert "BENCH eval_cpp_shield_collision_rate 1.0000 ratio" in out
     assert not any("eval_py_" in line for line in out)
-    assert len(bench_lines({})) == 0
+    assert len(bench_lines({}, "bare")) == 0
 
 
 def test_the_evaluation_simulator_config_is_lockstepped_with_the_controller_and_the_runner(
@@ -219,7 +220,8 @@ def test_bad_policy_and_policy_config_paths_are_named(
     bad.write_text((ROOT / "config" / "policy.yaml").read_text().replace("turn_clearance_m: 0.8\n", ""))
     assert main([*base, "--policy", str(policy), "--policy-config", str(bad)]) == 1
     err = capsys.readouterr().err
-    assert "--policy-config: " in err and "key 'recovery.turn_clearance_m': Field required" in err, err
+    assert f"--policy-config: {bad} (tier shield): invalid policy config" in err, err
+    assert "key 'recovery.turn_clearance_m': Field required" in err, err
     assert not (tmp_path / "out" / "logs").exists()  # nothing was launched
 
 

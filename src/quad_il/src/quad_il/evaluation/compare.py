@@ -16,12 +16,12 @@ file is missing or incomplete.
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 from quad_il.evaluation.episodes import EpisodeResult, read_episodes, read_results
+from quad_il.evaluation.stats import mcnemar_exact_p
 
 OUTCOME_ORDER = ("goal_reached", "collision", "timeout")
 
@@ -41,17 +41,6 @@ class Comparison:
     goals_gained: int  # reached in B only
     goals_lost: int  # reached in A only
     mcnemar_p: float
-
-
-def mcnemar_exact_p(gained: int, lost: int) -> float:
-    """Exact two-sided McNemar p-value: 2 P(X <= min(b, c)), X ~ Binomial(b + c, 1/2), capped at 1."""
-    if gained < 0 or lost < 0:
-        raise ValueError("counts must be >= 0")
-    n = gained + lost
-    if n == 0:
-        return 1.0
-    tail = sum(math.comb(n, k) for k in range(min(gained, lost) + 1)) / 2.0**n
-    return min(1.0, 2.0 * tail)
 
 
 def _load(run: Path, controller: str) -> tuple[list, dict[int, EpisodeResult]]:

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 
-from quad_il.evaluation.episodes import EpisodeResult
+from quad_il.evaluation.episodes import OUTCOMES, EpisodeResult
 from quad_il.inference.geometry import rotation_matrix
 
 FloatArray = NDArray[np.float64]
@@ -94,6 +94,13 @@ class ControllerSummary:
     )
     kept: int = 0  # decisions that sent nothing, the plan sent before flown on (config keeping), all kinds
     committed: int = 0  # of those, kept because their commitment had not ended (keeping.commit_s)
+    # Lockstep waits of the simulator that timed out during the episodes (a run with any is not reproducible:
+    # sim time went on without a consumer's acknowledgement); None when the results do not say.
+    lockstep_timeouts: int | None = None
+    outcomes: dict[str, int] = field(default_factory=dict)  # episodes per outcome (episodes.OUTCOMES)
+
+    def count(self, outcome: str) -> int:
+        return self.outcomes.get(outcome, 0)
 
 
 def summarise(controller: str, results: Sequence[EpisodeResult]) -> ControllerSummary:
@@ -130,4 +137,13 @@ def summarise(controller: str, results: Sequence[EpisodeResult]) -> ControllerSu
         final_approach=sum(r.counts.get("final_approach", 0) for r in rs),
         kept=sum(r.counts.get("kept", 0) + r.counts.get("committed", 0) for r in rs),
         committed=sum(r.counts.get("committed", 0) for r in rs),
+        lockstep_timeouts=_lockstep_timeouts(rs),
+        outcomes={o: sum(r.outcome == o for r in rs) for o in OUTCOMES},
     )
+
+
+def _lockstep_timeouts(rs: Sequence[EpisodeResult]) -> int | None:
+    known = [getattr(r, "lockstep_timeouts", None) for r in rs]
+    if any(k is None for k in known):
+        return None
+    return int(sum(known))

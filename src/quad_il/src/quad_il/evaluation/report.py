@@ -1,6 +1,7 @@
-"""The closed-loop evaluation's report: OUT/report.md with the per-controller table, plots (outcome bars,
-decision latency histograms, top-down trajectory overlays) and the rviz snapshots, and the BENCH lines
-eval_<controller>_success_rate, _collision_rate, _timeout_rate on stdout."""
+"""The closed-loop evaluation's report: OUT/report.md with what the run was pinned to (hashes, tier, set,
+commit), the per-controller table with a 95 % Wilson interval beside every rate, plots (outcome bars with
+their intervals, decision latency histograms, top-down trajectory overlays) and the rviz snapshots, and the
+BENCH lines on stdout: eval_expert_{success,collision,timeout}_rate and eval_<py|cpp>_<tier>_{...}_rate."""
 
 from __future__ import annotations
 
@@ -18,19 +19,83 @@ from scipy.spatial import ConvexHull
 from quad_il.collection.episodes import EpisodeSpec
 from quad_il.evaluation.episodes import EpisodeResult, read_results
 from quad_il.evaluation.metrics import ControllerSummary, summarise
+from quad_il.evaluation.pin import RunPin
+from quad_il.evaluation.stats import format_rate, wilson_interval
 from quad_il.inference.geometry import rotation_matrix
 
 COLOURS = {"expert": "tab:blue", "py": "tab:green", "cpp": "tab:orange"}
 NAMES = {"expert": "expert (fast_planner)", "py": "policy, Python", "cpp": "policy, C++ (LibTorch)"}
 
 
-def bench_lines(summaries: dict[str, ControllerSummary]) -> list[str]:
+RATES = (("goal_reached", "success"), ("collision", "collision"), ("timeout", "timeout"))
+
+
+def bench_name(controller: str, tier: str) -> str:
+    """eval_expert (the expert has no tier) or eval_<controller>_<tier>."""
+    return "eval_expert" if controller == "expert" else f"eval_{controller}_{tier}"
+
+
+def bench_lines(summaries: dict[str, ControllerSummary], tier: str) -> list[str]:
     lines = []
     for c, s in summaries.items():
-        lines.append(f"BENCH eval_{c}_success_rate {s.success_rate:.4f} ratio")
-        lines.append(f"BENCH eval_{c}_collision_rate {s.collision_rate:.4f} ratio")
-        lines.append(f"BENCH eval_{c}_timeout_rate {s.timeout_rate:.4f} ratio")
+        for outcome, word in RATES:
+            lines.append(f"BENCH {bench_name(c, tier)}_{word}_rate {s.count(outcome) / s.episodes:.4f} ratio")
     return lines
+
+
+def _reproducible(s: ControllerSummary) -> str:
+    if s.lockstep_timeouts is None:
+        return "unknown (no lockstep count)"
+    if s.lockstep_timeouts:
+        return f"**no** ({s.lockstep_timeouts} lockstep timeouts)"
+    return "yes"
+
+
+def pin_lines(pin: RunPin | None) -> list[str]:
+    """The report's account of what the run was flown with."""
+    if pin is None:
+        return ["Not pinned (a run made before pin.json existed): its policy and configs are unknown.", ""]
+    dirty = " (with uncommitted changes: not reproducible from the commit alone)" if pin.dirty else ""
+    rows = [
+        ("tier", f"`{pin.tier}`" if pin.tier else "- (expert only)"),
+        (
+            "evaluation set",
+            f"`{pin.eval_set}` (config/eval_sets.yaml)" if pin.eval_set else "- (seeds given)",
+        ),
+        ("policy", f"`{pin.policy_path}` sha256 `{pin.policy_sha256}`" if pin.policy_sha256 else "-"),
+        (
+            "policy node config",
+            f"tier `{pin.tier}` of `{pin.policy_config_base}`, as flown: `policy_config.yaml` sha256 "
+            f"`{pin.policy_config_sha256}`"
+            if pin.policy_config_sha256
+            else "-",
+        ),
+        ("simulator config", f"`{pin.sim_config_path}` sha256 `{pin.sim_config_sha256}`"),
+        ("vehicle", f"sha256 `{pin.vehicle_sha256}`"),
+        ("expert planner config", f"sha256 `{pin.planner_config_sha256}`"),
+        ("box density", "the simulator config's" if pin.density is None else f"{pin.density:g} per 100 m^2"),
+        ("commit", f"`{pin.commit}`{dirty}"),
+    ]
+    return ["| pinned | value |", "|---|---|", *[f"| {k} | {v} |" for k, v in rows], ""]
+
+
+TIER_WORDS = {
+    "bare": "the network alone: only a non-finite output is refused, then the vehicle brakes",
+    "safety": "the network with the safety layer: depth and limit checks refuse, a refusal brakes",
+    "shield": "the network with every hand-written behaviour of the node config: safety, recovery, final "
+    "approach, keeping the plan",
+}
+
+
+def _seed_ranges(seeds: list[int]) -> str:
+    """[1, 2, 3, 7] -> '1-3, 7'."""
+    parts: list[list[int]] = []
+    for x in seeds:
+        if parts and parts[-1][1] == x - 1:
+            parts[-1][1] = x
+        else:
+            parts.append([x, x])
+    return ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in parts)
 
 
 def _fmt(v: float, digits: int = 2, pct: bool = False) -> str:
@@ -96,9 +161,19 @@ def plot_outcomes(path: Path, summaries: dict[str, ControllerSummary]) -> None:
     w = 0.8 / max(len(summaries), 1)
     for i, (c, s) in enumerate(summaries.items()):
         vals = [100 * getattr(s, k) for k, _ in kinds]
-        ax.bar(x + (i - (len(summaries) - 1) / 2) * w, vals, w, label=NAMES.get(c, c), color=COLOURS.get(c))
+        ci = [wilson_interval(s.count(o), s.episodes) for o in ("goal_reached", "collision", "timeout")]
+        err = np.array([[v - 100 * lo, 100 * hi - v] for v, (lo, hi) in zip(vals, ci, strict=True)]).T
+        ax.bar(
+            x + (i - (len(summaries) - 1) / 2) * w,
+            vals,
+            w,
+            yerr=err,
+            capsize=3,
+            label=NAMES.get(c, c),
+            color=COLOURS.get(c),
+        )
     ax.set_xticks(x, [k for _, k in kinds])
-    ax.set_ylabel("episodes (%)")
+    ax.set_ylabel("episodes (%, 95 % Wilson interval)")
     ax.set_ylim(0, 100)
     ax.legend()
     ax.grid(axis="y", alpha=0.3)
@@ -178,10 +253,12 @@ def write_report(
     specs: list[EpisodeSpec],
     skipped: dict[str, str],
     options: dict[str, Any],
+    pin: RunPin | None = None,
 ) -> Path:
     results = {c: read_results(out / f"{c}.jsonl") for c in controllers}
     results = {c: rs for c, rs in results.items() if rs}
     summaries = {c: summarise(c, rs) for c, rs in results.items()}
+    tier = (pin.tier if pin is not None and pin.tier else None) or options.get("tier") or "shield"
     sim_config = next(
         (out / f"sim_{c}.yaml" for c in controllers if (out / f"sim_{c}.yaml").is_file()),
         Path(options.get("sim_config", "")),
@@ -189,34 +266,39 @@ def write_report(
     lines = [
         "# Closed-loop evaluation",
         "",
-        f"{len(specs)} episodes on world seeds {sorted({s.seed for s in specs})}, box density "
+        f"{len(specs)} episodes on world seeds {_seed_ranges(sorted({s.seed for s in specs}))}, box density "
         f"{options.get('density') or 'of the sim config'}, start/goal {options.get('min_distance_m')}-"
         f"{options.get('max_distance_m')} m apart, episode timeout {options.get('episode_timeout_s')} s (sim "
-        f"time), simulator in lockstep. Policy: `{options.get('policy') or '-'}`, node config "
-        f"`{options.get('policy_config') or '-'}`.",
+        f"time), simulator in lockstep. Policy nodes in tier **`{tier}`** ({TIER_WORDS.get(tier, tier)}).",
         "",
-        "| controller | episodes | success | collision | timeout | reset/take-off failed | mean time to goal "
-        "(s) | mean path length (m) | min clearance (m) | median min clearance (m) | decision ms median | "
-        "decision ms p99 | decisions | refusals (recovered) | steered | turning | final approach | "
-        "kept (committed) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        *pin_lines(pin),
+        "| controller | tier | episodes | success [95 % CI] | collision [95 % CI] | timeout [95 % CI] | "
+        "reset/take-off failed | reproducible | mean time to goal (s) | mean path length (m) | "
+        "min clearance (m) | median min clearance (m) | decision ms median | decision ms p99 | decisions | "
+        "refusals (recovered) | steered | turning | final approach | kept (committed) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for c, s in summaries.items():
         lines.append(
-            f"| {NAMES.get(c, c)} | {s.episodes} | {_fmt(s.success_rate, pct=True)} | "
-            f"{_fmt(s.collision_rate, pct=True)} | {_fmt(s.timeout_rate, pct=True)} | "
-            f"{_fmt(s.other_rate, pct=True)} | {_fmt(s.mean_time_to_goal_s, 1)} | "
+            f"| {NAMES.get(c, c)} | {'-' if c == 'expert' else tier} | {s.episodes} | "
+            f"{format_rate(s.count('goal_reached'), s.episodes)} | "
+            f"{format_rate(s.count('collision'), s.episodes)} | "
+            f"{format_rate(s.count('timeout'), s.episodes)} | "
+            f"{_fmt(s.other_rate, pct=True)} | {_reproducible(s)} | {_fmt(s.mean_time_to_goal_s, 1)} | "
             f"{_fmt(s.mean_path_length_m, 1)} | {_fmt(s.min_clearance_m)} | "
             f"{_fmt(s.median_min_clearance_m)} | {_fmt(s.decision_ms_median, 3)} | "
             f"{_fmt(s.decision_ms_p99, 3)} | {s.decisions} | {s.refusals} ({s.recovered}) | {s.steered} | "
             f"{s.turning} | {s.final_approach} | {s.kept} ({s.committed}) |"
         )
     for c, why in skipped.items():
-        lines.append(f"| {NAMES.get(c, c)} | not run: {why} |||||||||||||||||")
+        lines.append(f"| {NAMES.get(c, c)} | not run: {why} |||||||||||||||||||")
     lines += [
         "",
-        "Success, collision and timeout are shares of all episodes; time to goal and path length are means "
-        "over the successful ones. Clearance: the minimum over the flight of the distance from the vehicle's "
+        "Success, collision and timeout are shares of all episodes, each with its 95 % Wilson score interval "
+        "in brackets (scipy.stats.binomtest); time to goal and path length are means "
+        "over the successful ones. Reproducible: no lockstep wait of the simulator timed out (a timeout "
+        "lets sim time go on without a consumer, so the run may not repeat). Clearance: the minimum over the "
+        "flight of the distance from the vehicle's "
         "centre to the nearest world box minus the vehicle box's circumscribed radius (a lower bound of the "
         "exact box-to-box clearance; the ground is not counted). Decision latency: policies preprocessing + "
         "forward + message (policy/decision), expert map update + plan (planner/timing). Refusals: decisions "
@@ -247,7 +329,7 @@ def write_report(
         lines += ["## rviz snapshots", ""]
         lines += [f"![{p.parent.name} {p.stem}]({p.relative_to(out)})" for p in snaps]
         lines.append("")
-    bench = bench_lines(summaries)
+    bench = bench_lines(summaries, tier)
     lines += ["## BENCH", "", "```", *bench, "```", ""]
     report = out / "report.md"
     report.write_text("\n".join(lines))

@@ -1,10 +1,20 @@
 """`make eval`: the closed-loop evaluation (issue 8). The same held-out seeded worlds and start/goal pairs are
 flown by each controller (expert, Python policy, C++ policy); then the Markdown report, plots and BENCH lines.
 
-    python -m quad_il.evaluation.run_eval --policy runs/default/policy.ts --seeds 9000-9019 --episodes 20
-        [--density 12.5] [--controllers expert,py,cpp] [--out results/eval] [--sim-config config/sim.yaml]
-        [--episode-timeout-s 60] [--min-distance-m 20 --max-distance-m 30] [--snapshots 8,15]
-        [--episode-mode relaunch|reset] [--setup-retries 1] [--report-only]
+    python -m quad_il.evaluation.run_eval --policy runs/default/policy.ts
+        [--set dev|dev_dense|test|test_dense] [--seeds 9000-9019 --episodes 20 --density 12.5]
+        [--tier bare|safety|shield] [--force-new]
+        [--controllers expert,py,cpp] [--out results/eval] [--sim-config config/sim.yaml]
+        [--policy-config config/policy_keep.yaml] [--episode-timeout-s 60]
+        [--min-distance-m 20 --max-distance-m 30] [--snapshots 8,15] [--episode-mode relaunch|reset]
+        [--setup-retries 1] [--report-only]
+
+Episodes come from an evaluation set of config/eval_sets.yaml (--set; development sets for choices, test
+sets only to report) or from --seeds/--episodes/--density. The policy nodes fly one tier (--tier;
+evaluation/tiers.py): `bare` the network alone, `safety` with the depth and limit refusals, `shield`
+(default) with every hand-written behaviour of the node config. OUT/pin.json pins the policy, node config,
+simulator config and commit: resuming into OUT with any of them different is an error naming it
+(--force-new moves the old run aside).
 
 Per controller: a private ROS master with `roslaunch quad_il infer.launch controller:=<c>` (simulator in
 lockstep with the controller and the runner as depth consumers, tracker, controller), then `python -m
@@ -12,7 +22,8 @@ quad_il.evaluation.runner` flies every episode through the simulator's reset ser
 to OUT/<controller>.jsonl (an interrupted run resumes after the last finished episode). A controller whose
 node is not built is reported as unavailable. With
 --snapshots, rviz snapshots (tools/snapshot.py) are taken at those sim times of each controller's run.
-BENCH lines: eval_<controller>_success_rate, _collision_rate, _timeout_rate (ratios in [0, 1]).
+BENCH lines: eval_expert_{success,collision,timeout}_rate and eval_<py|cpp>_<tier>_{success,collision,
+timeout}_rate (ratios in [0, 1]).
 """
 
 from __future__ import annotations
@@ -24,6 +35,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -37,6 +49,18 @@ from quad_il.evaluation.episodes import (
     read_results,
     write_episodes,
 )
+from quad_il.evaluation.pin import (
+    RunPin,
+    differences,
+    git_commit,
+    merge,
+    read_pin,
+    sha256_bytes,
+    sha256_of,
+    write_pin,
+)
+from quad_il.evaluation.sets import EvalSetError, get_eval_set, world_density
+from quad_il.evaluation.tiers import DEFAULT_TIER, TIERS, TierError, render_tier_config
 from quad_il.tools.ports import free_port
 
 ROOT = Path(os.environ.get("QUAD_IL_ROOT") or Path(__file__).resolve().parents[5])
@@ -44,6 +68,10 @@ CONTROLLERS = ("expert", "py", "cpp")
 # The policy nodes' config when none is given: the recovery at 10 Hz, the final approach and the plan kept
 # (docs/inference.md, "Keeping the plan"; docs/RESULTS.md).
 DEFAULT_POLICY_CONFIG = ROOT / "config" / "policy_keep.yaml"
+DEFAULT_SETS = ROOT / "config" / "eval_sets.yaml"
+PLANNER_CONFIG = ROOT / "config" / "planner.yaml"  # the expert's (launch/planner.launch default)
+DEFAULT_SEEDS, DEFAULT_EPISODES = "9000-9019", 20  # without --set
+TIER_CONFIG = "policy_config.yaml"  # OUT/<this>: the tier's complete node config, what the policy nodes read
 # The FrameAck consumer of each controller (config/policy.yaml lockstep_consumer; planner.launch's default).
 CONSUMER = {"expert": "fast_planner", "py": "policy", "cpp": "policy"}
 RUNNER_CONSUMER = "eval_runner"  # the episode runner's own FrameAck consumer name
@@ -124,8 +152,7 @@ def _launch(
     ]
     if controller != "expert":
         cmd.append(f"policy:={Path(args.policy).resolve()}")
-        if args.policy_config:
-            cmd.append(f"policy_config:={Path(args.policy_config).resolve()}")
+        cmd.append(f"policy_config:={out / TIER_CONFIG}")
     with open(out / "logs" / f"{controller}_{tag}_launch.log", "w") as log:
         proc = subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
     return proc, env
@@ -288,10 +315,31 @@ def run_controller(args: argparse.Namespace, controller: str, out: Path, episode
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--policy", default="", help="exported policy (policy.ts) for the py and cpp controllers")
-    ap.add_argument("--seeds", default="9000-9019", help="held-out world seeds, e.g. 9000-9019,9100")
-    ap.add_argument("--episodes", type=int, default=20)
+    ap.add_argument(
+        "--set",
+        default="",
+        help="an evaluation set of --sets-file (dev, dev_dense, test, test_dense): seeds, episodes, density",
+    )
+    ap.add_argument(
+        "--sets-file", default=str(DEFAULT_SETS), help="the evaluation sets (config/eval_sets.yaml)"
+    )
+    ap.add_argument(
+        "--seeds", default=None, help=f"world seeds, e.g. 9000-9019,9100 (without --set: {DEFAULT_SEEDS})"
+    )
+    ap.add_argument("--episodes", type=int, default=None, help=f"without --set: {DEFAULT_EPISODES}")
     ap.add_argument(
         "--density", type=float, default=None, help="boxes per 100 m^2 (default: the sim config's)"
+    )
+    ap.add_argument(
+        "--tier",
+        default=DEFAULT_TIER,
+        choices=TIERS,
+        help="bare: the network alone; safety: + depth and limit refusals; shield: the node config as it is",
+    )
+    ap.add_argument(
+        "--force-new",
+        action="store_true",
+        help="OUT holds a run flown with something else: move it aside (OUT.old-<time>) and start over",
     )
     ap.add_argument("--controllers", default=",".join(CONTROLLERS))
     ap.add_argument("--out", default=str(ROOT / "results" / "eval"))
@@ -299,7 +347,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--policy-config",
         default=str(DEFAULT_POLICY_CONFIG),
-        help="policy node config for py and cpp (default: config/policy_keep.yaml)",
+        help="policy node config the tier applies to (default: config/policy_keep.yaml)",
     )
     ap.add_argument("--episode-timeout-s", type=float, default=60.0, help="sim time per episode")
     ap.add_argument("--wall-timeout-s", type=float, default=7200.0, help="wall time per controller")
@@ -337,6 +385,85 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(signal.SIGTERM, previous)
 
 
+def resolve_episodes(args: argparse.Namespace, sim_base: dict) -> None:
+    """Sets args.seeds, args.episodes and args.density from --set or the defaults; EvalError on a conflict."""
+    if args.set:
+        given = [f"--{k}" for k in ("seeds", "episodes", "density") if getattr(args, k) is not None]
+        if given:
+            raise EvalError(
+                f"--set {args.set} fixes the seeds, episodes and density; do not also give {', '.join(given)}"
+            )
+        try:
+            eval_set = get_eval_set(args.sets_file, args.set)
+        except EvalSetError as e:
+            raise EvalError(str(e)) from None
+        args.seeds, args.episodes = eval_set.seeds, eval_set.episodes
+        args.density = world_density(eval_set, sim_base)
+        return
+    args.seeds = DEFAULT_SEEDS if args.seeds is None else args.seeds
+    args.episodes = DEFAULT_EPISODES if args.episodes is None else args.episodes
+
+
+def make_pin(args: argparse.Namespace, policy_controllers: bool, tier_text: str) -> RunPin:
+    sim = Path(args.sim_config)
+    vehicle = (sim.parent / yaml.safe_load(sim.read_text())["vehicle_file"]).resolve()
+    commit, dirty = git_commit(ROOT)
+    return RunPin(
+        tier=args.tier if policy_controllers else "",
+        eval_set=args.set,
+        policy_sha256=sha256_of(args.policy) if policy_controllers else "",
+        policy_path=str(Path(args.policy).resolve()) if policy_controllers else "",
+        policy_config_sha256=sha256_bytes(tier_text.encode()) if policy_controllers else "",
+        policy_config_base=str(Path(args.policy_config).resolve()) if policy_controllers else "",
+        sim_config_sha256=sha256_of(sim),
+        sim_config_path=str(sim.resolve()),
+        vehicle_sha256=sha256_of(vehicle),
+        planner_config_sha256=sha256_of(PLANNER_CONFIG),
+        density=args.density,
+        commit=commit,
+        dirty=dirty,
+    )
+
+
+def move_aside(out: Path) -> Path:
+    """Renames OUT to OUT.old-<UTC time> (nothing is deleted) and returns the new name."""
+    stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
+    dest = out.with_name(f"{out.name}.old-{stamp}")
+    n = 1
+    while dest.exists():
+        dest = out.with_name(f"{out.name}.old-{stamp}-{n}")
+        n += 1
+    out.rename(dest)
+    return dest
+
+
+def pin_run(out: Path, pin: RunPin, force_new: bool) -> RunPin:
+    """Checks OUT's pin against this invocation's (or moves the old run aside with force_new); writes it."""
+    old = read_pin(out)
+    if old is None and any(out.glob("*.jsonl")):
+        if not force_new:
+            raise EvalError(
+                f"{out} holds results without a pin (made before runs were pinned): their policy and "
+                "configs are unknown; use --force-new (moves them aside) or another --out"
+            )
+    if old is not None:
+        flown = any(read_results(out / f"{c}.jsonl") for c in ("py", "cpp"))
+        diffs = differences(old, pin, flown)
+        if diffs and not force_new:
+            raise EvalError(
+                f"{out} was flown with something else, so its results cannot be resumed: "
+                + "; ".join(diffs)
+                + ". Use --force-new (moves the old run aside) or another --out"
+            )
+        if not diffs:
+            pin = merge(old, pin)
+    if force_new and (old is not None or any(out.iterdir())):
+        print(f"[eval] --force-new: the earlier run moved to {move_aside(out)}", file=sys.stderr)
+        out.mkdir(parents=True)
+    write_pin(out, pin)
+    return pin
+
+
 def _run(args: argparse.Namespace, write_report: Callable[..., Path]) -> int:
     try:
         controllers = [c.strip() for c in args.controllers.split(",") if c.strip()]
@@ -345,22 +472,32 @@ def _run(args: argparse.Namespace, write_report: Callable[..., Path]) -> int:
             raise EvalError(f"unknown controller(s) {bad} (choose from {', '.join(CONTROLLERS)})")
         if args.setup_retries < 0:
             raise EvalError(f"--setup-retries must be >= 0, got {args.setup_retries}")
-        if any(c != "expert" for c in controllers) and not args.report_only:
+        if not Path(args.sim_config).is_file():
+            raise EvalError(f"--sim-config: no such file {args.sim_config!r}")
+        sim_base = yaml.safe_load(Path(args.sim_config).read_text())
+        resolve_episodes(args, sim_base)
+        policy_controllers = any(c != "expert" for c in controllers)
+        args.policy_config = args.policy_config or str(DEFAULT_POLICY_CONFIG)
+        tier_text = ""
+        if policy_controllers and not args.report_only:
             if not args.policy or not Path(args.policy).is_file():
                 raise EvalError(f"--policy must name an exported policy file, got {args.policy!r}")
-            if args.policy_config and not Path(args.policy_config).is_file():
+            if not Path(args.policy_config).is_file():
                 raise EvalError(f"--policy-config: no such file {args.policy_config!r}")
             # Checked here with the nodes' own strict schema: a node that dies on its config at launch
             # would otherwise show only as "no depth frame" after the runner's 30 s wait.
-            from quad_il.inference.config import PolicyConfigError, load_policy_config
-
             try:
-                load_policy_config(args.policy_config or DEFAULT_POLICY_CONFIG)
-            except PolicyConfigError as e:
+                tier_text = render_tier_config(args.policy_config, args.tier)
+            except TierError as e:
                 raise EvalError(f"--policy-config: {e}") from None
         out = Path(args.out).resolve()  # the nodes run in ROS_HOME: every path handed to them is absolute
         out.mkdir(parents=True, exist_ok=True)
-        sim_base = yaml.safe_load(Path(args.sim_config).read_text())
+        if args.report_only:
+            pin = read_pin(out)
+        else:
+            pin = pin_run(out, make_pin(args, policy_controllers, tier_text), args.force_new)
+            if tier_text:
+                (out / TIER_CONFIG).write_text(tier_text)
         gen = sim_base["world"]["generator"]
         start_goal = StartGoalConfig(
             bounds_min_xy_m=tuple(gen["bounds_min_m"][:2]),
@@ -371,7 +508,7 @@ def _run(args: argparse.Namespace, write_report: Callable[..., Path]) -> int:
         episodes_file = out / "episodes.json"
         specs = plan_eval_episodes(parse_seeds(args.seeds), args.episodes, start_goal)
         if episodes_file.is_file() and read_episodes(episodes_file) != specs:
-            raise EvalError(f"{episodes_file} holds other episodes: choose another --out or remove it")
+            raise EvalError(f"{episodes_file} holds other episodes: choose another --out or use --force-new")
         write_episodes(episodes_file, specs)
         skipped: dict[str, str] = {}
         if not args.report_only:
@@ -380,7 +517,7 @@ def _run(args: argparse.Namespace, write_report: Callable[..., Path]) -> int:
                 if why:
                     print(f"[eval] {c}: skipped: {why}", file=sys.stderr)
                     skipped[c] = why
-        report = write_report(out, controllers, specs, skipped, vars(args))
+        report = write_report(out, controllers, specs, skipped, vars(args), pin)
     except (EvalError, OSError, ValueError, subprocess.TimeoutExpired) as e:
         print(f"eval: {e}", file=sys.stderr)
         return 1

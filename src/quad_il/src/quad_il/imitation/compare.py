@@ -26,6 +26,7 @@ from pathlib import Path
 
 from quad_il.evaluation.episodes import EpisodeResult, read_episodes, read_results
 from quad_il.evaluation.metrics import summarise
+from quad_il.evaluation.stats import wilson_interval
 from quad_il.inference.safety import SafetyVerdict
 
 
@@ -80,16 +81,6 @@ def _summary_row(
 
 # A decision is a network output the safety layer judged: its verdict is counted under one of these names.
 VERDICTS = tuple(v.label for v in SafetyVerdict)
-
-
-def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    """95 % Wilson score interval of a success rate (z = 1.96): with 10 episodes, 2 successes give 6-51 %."""
-    if n <= 0:
-        return math.nan, math.nan
-    p = successes / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z / (1 + z * z / n) * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
-    return max(0.0, centre - half), min(1.0, centre + half)
 
 
 def _median(values: list[float]) -> float:

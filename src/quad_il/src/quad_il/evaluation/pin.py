@@ -1,0 +1,141 @@
+"""Pinned evaluation runs (issue 30): what an evaluation directory was flown with, checked on every resume.
+
+OUT/pin.json records the sha256 of the policy file, of the policy node config the nodes read (the tier's
+complete config, written to OUT/policy_config.yaml), of the simulator config and the vehicle file it names,
+of the expert's planner config, the tier, the evaluation set and the commit. `run_eval` resuming into OUT with
+any of them different stops with a message naming each difference (`--force-new` moves the old run aside and
+starts over). The policy fields of an expert-only run are empty; a later run may fill them in as long as no
+policy episode was flown.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import subprocess
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+PIN_FILE = "pin.json"
+PIN_FORMAT = 1
+
+
+def sha256_bytes(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def sha256_of(path: str | Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while block := f.read(1 << 22):
+            h.update(block)
+    return h.hexdigest()
+
+
+def git_commit(root: Path) -> tuple[str, bool | None]:
+    """(HEAD's sha or 'unknown', whether tracked files differ from it; None when unknown)."""
+    try:
+        sha = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, timeout=10, check=True
+        ).stdout.strip()
+        status = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=root,
+            capture_output=True,
+            text=True,
+            timeout=30,
+            check=True,
+        ).stdout
+        return sha, bool(status.strip())
+    except (OSError, subprocess.SubprocessError):
+        return "unknown", None
+
+
+@dataclass(frozen=True)
+class RunPin:
+    """What an evaluation directory was flown with. Hashes are hex sha256; '' = not used by this run."""
+
+    tier: str
+    eval_set: str  # '' = seeds and episodes given by hand
+    policy_sha256: str
+    policy_path: str
+    policy_config_sha256: str  # of OUT/policy_config.yaml, the complete config both policy nodes read
+    policy_config_base: str  # the config the tier was applied to
+    sim_config_sha256: str
+    sim_config_path: str
+    vehicle_sha256: str
+    planner_config_sha256: str  # the expert's (config/planner.yaml)
+    density: float | None
+    commit: str
+    dirty: bool | None
+
+    # Fields that must be equal on resume (paths may move; the hashes say whether the content did).
+    CHECKED = (
+        "tier",
+        "eval_set",
+        "policy_sha256",
+        "policy_config_sha256",
+        "sim_config_sha256",
+        "vehicle_sha256",
+        "planner_config_sha256",
+        "density",
+        "commit",
+    )
+    # What only the policy controllers use: all empty when an invocation flies the expert alone.
+    POLICY_FIELDS = ("tier", "policy_sha256", "policy_path", "policy_config_sha256", "policy_config_base")
+
+    def flies_policy(self) -> bool:
+        return bool(self.policy_sha256)
+
+    def to_json(self) -> str:
+        return json.dumps({"format": PIN_FORMAT, **dataclasses.asdict(self)}, indent=1)
+
+    @classmethod
+    def from_json(cls, text: str, source: str) -> RunPin:
+        try:
+            tree: dict[str, Any] = json.loads(text)
+        except json.JSONDecodeError as e:
+            raise ValueError(f"{source}: not valid JSON ({e})") from None
+        if tree.pop("format", None) != PIN_FORMAT:
+            raise ValueError(f"{source}: not a format-{PIN_FORMAT} evaluation pin")
+        names = {f.name for f in dataclasses.fields(cls)}
+        if set(tree) != names:
+            raise ValueError(f"{source}: pin keys {sorted(set(tree) ^ names)} missing or unknown")
+        return cls(**tree)
+
+
+def differences(old: RunPin, new: RunPin, policy_flown: bool) -> list[str]:
+    """Human-readable differences that forbid resuming `old` with `new` (empty: same run). An invocation that
+    flies no policy is not compared on the policy's fields; one that does may fill in a run's empty policy
+    fields only while no policy episode was flown."""
+    skip: set[str] = set()
+    if not new.flies_policy() or (not old.flies_policy() and not policy_flown):
+        skip = set(RunPin.POLICY_FIELDS)
+    out = []
+    for name in RunPin.CHECKED:
+        a, b = getattr(old, name), getattr(new, name)
+        if a != b and name not in skip:
+            out.append(f"{name}: run has {a!r}, this invocation {b!r}")
+    return out
+
+
+def merge(old: RunPin, new: RunPin) -> RunPin:
+    """`new`, keeping the policy fields of `old` when `new` flies no policy."""
+    if new.flies_policy():
+        return new
+    return dataclasses.replace(new, **{name: getattr(old, name) for name in RunPin.POLICY_FIELDS})
+
+
+def read_pin(out: Path) -> RunPin | None:
+    p = out / PIN_FILE
+    if not p.is_file():
+        return None
+    return RunPin.from_json(p.read_text(), str(p))
+
+
+def write_pin(out: Path, pin: RunPin) -> None:
+    tmp = out / (PIN_FILE + ".tmp")
+    tmp.write_text(pin.to_json())
+    tmp.replace(out / PIN_FILE)
