@@ -5,7 +5,8 @@
 #   2. train the policy on them (training_only/train_on_cpp_datasets.py; exports policy.ts);
 #   3. offline evaluation on demonstrations from worlds never seen in training (training_only/evaluate_policy.py);
 #   4. closed-loop evaluation: the expert, the Python policy and the C++ (LibTorch) policy fly the same held-out
-#      episodes (python -m quad_il.evaluation.run_eval); Markdown report with plots.
+#      episodes (python -m quad_il.evaluation.run_eval) in the `shield` tier, and the C++ policy again in the
+#      `bare` tier (the network alone, docs/inference.md "Tiers"); Markdown reports with plots.
 # Every stage's output is under $OUT (default results/demo); a stage whose output is complete is skipped, so an
 # interrupted demo continues where it stopped (DEMO_FRESH=1 starts over). Larger settings by variables:
 #   DEMO_TRAIN_EPISODES (60) DEMO_TEST_EPISODES (12) DEMO_EPOCHS (12) DEMO_EVAL_EPISODES (5) DEMO_WORKERS (2)
@@ -59,11 +60,15 @@ stage "3/4 offline evaluation on the held-out demonstrations"
 python training_only/evaluate_policy.py --policy "$RUN" --data "$OUT/data/heldout" --out "$OUT/offline"
 
 stage "4/4 closed-loop evaluation: expert, Python policy, C++ policy on $EVAL_EPISODES held-out episodes"
-python -m quad_il.evaluation.run_eval --policy "$RUN/policy.ts" --seeds "9000-$((9000 + EVAL_EPISODES - 1))" \
+EVAL_SEEDS="9000-$((9000 + EVAL_EPISODES - 1))"
+python -m quad_il.evaluation.run_eval --policy "$RUN/policy.ts" --seeds "$EVAL_SEEDS" \
   --episodes "$EVAL_EPISODES" --out "$OUT/eval"
+# The network alone on the same episodes: a hand-written behaviour's success is never the network's.
+python -m quad_il.evaluation.run_eval --policy "$RUN/policy.ts" --seeds "$EVAL_SEEDS" \
+  --episodes "$EVAL_EPISODES" --tier bare --controllers cpp --out "$OUT/eval_bare"
 
 stage "done"
 echo "[demo] training data:        $OUT/data/train/collection.yaml"
 echo "[demo] trained policy:       $RUN (loss curves: $RUN/loss_curves.png)"
 echo "[demo] offline metrics:      $OUT/offline/summary.md"
-echo "[demo] closed-loop report:   $OUT/eval/report.md"
+echo "[demo] closed-loop report:   $OUT/eval/report.md (tier shield), $OUT/eval_bare/report.md (tier bare)"
