@@ -43,6 +43,7 @@ p.add_argument("--inputs", default="")
 p.add_argument("--exit-code", type=int, default=0)
 p.add_argument("--slow-flag", default="slow")
 p.add_argument("--wait-for", default="", help="comma-separated children to wait for (live pid files)")
+p.add_argument("--block-flag", default="", help="while this control file exists: write a torn output, wait")
 a = p.parse_args()
 if a.setsid:
     os.setsid()
@@ -91,6 +92,22 @@ for other in filter(None, a.wait_for.split(",")):
     while not live(other) and not stop:
         time.sleep(0.01)
 
+if a.block_flag and (ctl / a.block_flag).exists():
+    # A stage caught half-way: a torn output (a checkpoint or metrics being written), then a wait; SIGINT
+    # ends it like a KeyboardInterrupt would, without completing the output.
+    if a.out:
+        a.out.mkdir(parents=True, exist_ok=True)
+        (a.out / "torn.partial").write_text("half")
+    event("blocked")
+    while (ctl / a.block_flag).exists() and not stop:
+        time.sleep(0.02)
+    if stop:
+        event("interrupted")
+        for k in kids:
+            k.send_signal(signal.SIGINT)
+            k.wait()
+        sys.exit(130)
+
 if a.mode == "service":
     while not stop:
         signal.pause()
@@ -122,7 +139,12 @@ elif a.mode == "train":
     a.out.mkdir(parents=True, exist_ok=True)
     (a.out / "policy.pt").write_text(a.inputs)
     event("finalised")
+    for k in kids:  # a trainer's helpers (data loader workers) end with it
+        k.send_signal(signal.SIGINT)
 else:
+    if a.out:
+        a.out.mkdir(parents=True, exist_ok=True)
+        (a.out / "metrics.json").write_text(json.dumps({"name": a.name}))
     sys.exit(a.exit_code)
 for k in kids:
     k.wait()

@@ -292,6 +292,10 @@ VerifyReport DatasetReader::Verify() const {
   return rep;
 }
 
+namespace {
+void RecountAndWriteManifest(const std::string& dir, Manifest* manifest, RecoverResult* result);
+}  // namespace
+
 RecoverResult RecoverDataset(const std::string& dir) {
   RecoverResult result;
   Manifest manifest;
@@ -330,6 +334,15 @@ RecoverResult RecoverDataset(const std::string& dir) {
     fs::rename(from, to);
     result.actions.push_back(name + ": renamed to " + fs::path(to).filename().string());
   }
+  RecountAndWriteManifest(dir, &manifest, &result);
+  return result;
+}
+
+namespace {
+// Rewrites the manifest from the shards on disk (shard list, episodes, written count) with status recovered.
+void RecountAndWriteManifest(const std::string& dir, Manifest* manifest_out, RecoverResult* result_out) {
+  Manifest& manifest = *manifest_out;
+  RecoverResult& result = *result_out;
   // Recount shards and episodes from what is on disk now.
   DatasetReader reader(dir);
   manifest.shards.clear();
@@ -365,6 +378,72 @@ RecoverResult RecoverDataset(const std::string& dir) {
   WriteManifest(dir, manifest, true);
   result.actions.push_back("manifest rewritten with status recovered: " + std::to_string(result.records) +
                            " valid records in " + std::to_string(manifest.shards.size()) + " shards");
+}
+}  // namespace
+
+RecoverResult TruncateDataset(const std::string& dir, uint64_t keep_records) {
+  RecoverResult result;
+  Manifest manifest;
+  std::vector<std::pair<std::string, uint64_t>> cuts;  // (path, new size); size 0: remove the file
+  {
+    DatasetReader reader(dir);
+    if (!reader.manifest()) throw FormatError(dir + ": no manifest.yaml: cannot truncate");
+    manifest = *reader.manifest();
+    if (manifest.status == DatasetStatus::kIncomplete) {
+      throw FormatError(dir + ": dataset is incomplete: recover it (read_dataset recover) before truncating");
+    }
+    if (keep_records > reader.num_records()) {
+      throw FormatError(dir + ": cannot keep " + std::to_string(keep_records) +
+                        " records, the dataset holds " + std::to_string(reader.num_records()));
+    }
+    uint64_t before = 0;
+    for (const ShardReader& s : reader.shards()) {
+      if (s.partial()) throw FormatError(s.path() + ": partial shard in a finalised dataset");
+      const uint64_t keep_here = keep_records > before ? std::min(s.num_records(), keep_records - before) : 0;
+      for (uint64_t r = 0; r < keep_here; ++r) {
+        const std::string problem = s.CheckRecord(r);
+        if (!problem.empty()) {
+          throw FormatError(s.path() + ": record " + std::to_string(r) + ": " + problem + " (not truncated)");
+        }
+      }
+      if (keep_here < s.num_records() || s.torn_tail_bytes() > 0) {
+        cuts.emplace_back(s.path(), keep_here == 0 ? 0 : kHeaderSize + keep_here * s.layout().record_size);
+        result.actions.push_back(
+            s.file_name() + ": " +
+            (keep_here == 0 ? std::string("removed (") + std::to_string(s.num_records()) + " records)"
+                            : "cut after record " + std::to_string(keep_here) + " (" +
+                                  std::to_string(s.num_records() - keep_here) + " records removed)"));
+      }
+      before += s.num_records();
+    }
+  }
+  // Shards are cut from the last one back, so an interruption never leaves a gap in the shard sequence.
+  for (auto it = cuts.rbegin(); it != cuts.rend(); ++it) {
+    if (it->second == 0) {
+      fs::remove(it->first);
+    } else if (::truncate(it->first.c_str(), static_cast<off_t>(it->second)) != 0) {
+      throw FormatError(it->first + ": cannot truncate: " + std::strerror(errno));
+    }
+  }
+  // Seqs and drops after the last kept record no longer belong to the dataset.
+  uint64_t next_seq = 0;
+  {
+    DatasetReader reader(dir);
+    if (!reader.shards().empty() && reader.shards().back().num_records() > 0) {
+      const ShardReader& last = reader.shards().back();
+      RecordHead h;
+      std::memcpy(&h, last.RecordBytes(last.num_records() - 1), sizeof(h));
+      next_seq = h.seq + 1;
+    }
+  }
+  std::vector<uint64_t> drops;
+  for (uint64_t seq : manifest.dropped_seqs) {
+    if (seq < next_seq) drops.push_back(seq);
+  }
+  manifest.counts.dropped -= manifest.dropped_seqs.size() - drops.size();
+  manifest.dropped_seqs = drops;
+  manifest.counts.submitted = next_seq;
+  RecountAndWriteManifest(dir, &manifest, &result);
   return result;
 }
 

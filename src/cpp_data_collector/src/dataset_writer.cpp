@@ -223,6 +223,83 @@ struct DatasetWriter::Impl {
   bool finalized = false;
   FinalizeResult final_result;
 
+  // OpenMode::kAppend: what the dataset held before this writer (added to this writer's counts).
+  RecordCounts base_counts;
+  std::vector<uint64_t> base_dropped_seqs;
+  int64_t episode_id_offset = 0;
+
+  // Loads a finalised dataset's manifest to continue it; throws std::runtime_error naming what prevents it.
+  void ContinueDataset(const Manifest& m) {
+    const std::string where = "dataset writer: cannot append to " + config.output_dir + ": ";
+    if (m.status == DatasetStatus::kIncomplete) {
+      throw std::runtime_error(where +
+                               "the dataset is incomplete (its writer died): run read_dataset recover first");
+    }
+    const auto mismatch = [&](const std::string& key, const std::string& have, const std::string& want) {
+      if (have != want) {
+        throw std::runtime_error(where + "its " + key + " is " + have + ", this writer's is " + want);
+      }
+    };
+    mismatch("image_width", std::to_string(m.config.image_width), std::to_string(config.image_width));
+    mismatch("image_height", std::to_string(m.config.image_height), std::to_string(config.image_height));
+    mismatch("max_ctrl_pts", std::to_string(m.config.max_ctrl_pts), std::to_string(config.max_ctrl_pts));
+    mismatch("max_yaw_pts", std::to_string(m.config.max_yaw_pts), std::to_string(config.max_yaw_pts));
+    mismatch("camera.fx_px", std::to_string(m.config.camera_fx_px), std::to_string(config.camera_fx_px));
+    mismatch("camera.fy_px", std::to_string(m.config.camera_fy_px), std::to_string(config.camera_fy_px));
+    mismatch("camera.cx_px", std::to_string(m.config.camera_cx_px), std::to_string(config.camera_cx_px));
+    mismatch("camera.cy_px", std::to_string(m.config.camera_cy_px), std::to_string(config.camera_cy_px));
+    mismatch("record_size_bytes", std::to_string(m.record_size_bytes), std::to_string(layout.record_size));
+    for (const auto& entry : fs::directory_iterator(config.output_dir)) {
+      const std::string name = entry.path().filename().string();
+      if (name.rfind(kShardPrefix, 0) == 0 && name.find(kPartialSuffix) != std::string::npos) {
+        throw std::runtime_error(where + "it holds the partial shard " + name +
+                                 ": run read_dataset recover first");
+      }
+    }
+    for (size_t i = 0; i < m.shards.size(); ++i) {
+      if (m.shards[i].index != i || !fs::exists(config.output_dir + "/" + m.shards[i].file)) {
+        throw std::runtime_error(where + "the manifest's shard " + m.shards[i].file + " is missing");
+      }
+    }
+    if (fs::exists(config.output_dir + "/" + ShardFileName(static_cast<uint32_t>(m.shards.size())))) {
+      throw std::runtime_error(where + "it holds " + ShardFileName(static_cast<uint32_t>(m.shards.size())) +
+                               ", which the manifest does not list");
+    }
+    created_utc = m.created_utc;
+    completed = m.shards;
+    episodes = m.episodes;
+    for (size_t i = 0; i < episodes.size(); ++i) {
+      episode_index.emplace(episodes[i].episode_id, i);
+      episode_id_offset = std::max(episode_id_offset, episodes[i].episode_id + 1);
+    }
+    records_written = m.counts.written;
+    base_counts = m.counts;
+    base_counts.written = 0;  // records_written carries it
+    base_dropped_seqs = m.dropped_seqs;
+    next_seq = m.counts.submitted;
+    if (!m.shards.empty()) next_seq = std::max(next_seq, m.shards.back().last_seq + 1);
+    run_info = m.run_info;
+    const auto previous = std::find_if(run_info.begin(), run_info.end(),
+                                       [](const auto& kv) { return kv.first == "appended_runs"; });
+    const int appended = previous == run_info.end() ? 1 : std::stoi(previous->second) + 1;
+    if (previous != run_info.end()) run_info.erase(previous);
+    run_info.emplace_back("appended_runs", std::to_string(appended));
+    run_info.erase(std::remove_if(run_info.begin(), run_info.end(),
+                                  [](const auto& kv) { return kv.first == "episode_id_offset"; }),
+                   run_info.end());
+    run_info.emplace_back("episode_id_offset", std::to_string(episode_id_offset));
+    // The manifest's software_commit is this writer's: keep every commit that wrote records, in order.
+    auto commits = std::find_if(run_info.begin(), run_info.end(),
+                                [](const auto& kv) { return kv.first == "software_commits"; });
+    if (commits == run_info.end()) {
+      run_info.emplace_back("software_commits", m.software_commit);
+      commits = run_info.end() - 1;
+    }
+    const std::string last = commits->second.substr(commits->second.rfind(',') + 1);
+    if (last != config.software_commit) commits->second += "," + config.software_commit;
+    stats.shards_completed = completed.size();
+  }
+
   Manifest BuildManifest(DatasetStatus status) const {
     Manifest m;
     m.format_version = kFormatVersion;
@@ -235,11 +312,14 @@ struct DatasetWriter::Impl {
     {
       std::lock_guard<std::mutex> lock(mu);
       m.run_info = run_info;
-      m.counts.submitted = stats.submitted;
-      m.counts.dropped = stats.dropped;
-      m.counts.rejected = stats.rejected;
-      m.counts.lost = stats.lost;
-      m.dropped_seqs = dropped_seqs;
+      m.counts.submitted = base_counts.submitted + stats.submitted;
+      m.counts.dropped = base_counts.dropped + stats.dropped;
+      m.counts.rejected = base_counts.rejected + stats.rejected;
+      m.counts.lost = base_counts.lost + stats.lost;
+      m.dropped_seqs = base_dropped_seqs;
+      for (uint64_t seq : dropped_seqs) {
+        if (m.dropped_seqs.size() < kMaxListedDrops) m.dropped_seqs.push_back(seq);
+      }
       m.writer_error = stats.last_error;
     }
     m.counts.written = records_written;
@@ -404,7 +484,7 @@ struct DatasetWriter::Impl {
     h.magic = kRecordMagic;
     h.flags = 0;
     h.seq = seq;
-    h.episode_id = r.episode_id;
+    h.episode_id = r.episode_id + episode_id_offset;
     h.world_seed = r.world_seed;
     h.sim_time_s = r.sim_time_s;
     h.depth_stamp_s = r.depth.stamp_s;
@@ -453,7 +533,7 @@ struct DatasetWriter::Impl {
   }
 };
 
-DatasetWriter::DatasetWriter(const WriterConfig& config, WriterHooks hooks)
+DatasetWriter::DatasetWriter(const WriterConfig& config, WriterHooks hooks, OpenMode mode)
     : impl_(std::make_unique<Impl>()) {
   config.Validate();
   Impl& m = *impl_;
@@ -477,11 +557,16 @@ DatasetWriter::DatasetWriter(const WriterConfig& config, WriterHooks hooks)
                              "': " + (ec ? ec.message() : "not a directory"));
   }
   m.config.output_dir = fs::absolute(config.output_dir).lexically_normal().string();  // for the manifest
-  for (const auto& entry : fs::directory_iterator(config.output_dir)) {
-    const std::string name = entry.path().filename().string();
-    if (name == kManifestName || name.rfind(kShardPrefix, 0) == 0) {
-      throw std::runtime_error("dataset writer: output directory '" + config.output_dir +
-                               "' already holds a dataset (found " + name + "); choose a new directory");
+  const bool has_manifest = fs::exists(config.output_dir + "/" + kManifestName);
+  if (mode == OpenMode::kAppend && has_manifest) {
+    m.ContinueDataset(ReadManifest(config.output_dir + "/" + kManifestName));
+  } else {
+    for (const auto& entry : fs::directory_iterator(config.output_dir)) {
+      const std::string name = entry.path().filename().string();
+      if (name == kManifestName || name.rfind(kShardPrefix, 0) == 0) {
+        throw std::runtime_error("dataset writer: output directory '" + config.output_dir +
+                                 "' already holds a dataset (found " + name + "); choose a new directory");
+      }
     }
   }
 
@@ -498,7 +583,7 @@ DatasetWriter::DatasetWriter(const WriterConfig& config, WriterHooks hooks)
   m.ready.assign(config.queue_capacity, 0);
   m.dropped_seqs.reserve(kMaxListedDrops);
   m.record_buf.assign(m.layout.record_size, 0);
-  m.created_utc = UtcNowIso8601();
+  if (m.created_utc.empty()) m.created_utc = UtcNowIso8601();
   WriteManifest(config.output_dir, m.BuildManifest(DatasetStatus::kIncomplete), config.fsync);
   m.thread = std::thread([this] { impl_->Run(); });
 }

@@ -152,16 +152,26 @@ void WriteManifest(const std::string& dir, const Manifest& manifest, bool fsync)
     const ssize_t n = ::write(fd, text.data() + done, text.size() - done);
     if (n < 0 && errno == EINTR) continue;
     if (n < 0) {
+      // Disk full (ENOSPC, EFBIG) or an I/O error: the previous manifest stays in place; the torn temporary
+      // file is removed so that nothing half-written is left beside it.
       const std::string err = std::strerror(errno);
       ::close(fd);
+      ::unlink(tmp_path.c_str());
       throw std::runtime_error("manifest: cannot write " + tmp_path + ": " + err);
     }
     done += static_cast<size_t>(n);
   }
-  if (fsync) ::fsync(fd);
+  if (fsync && ::fsync(fd) != 0) {
+    const std::string err = std::strerror(errno);
+    ::close(fd);
+    ::unlink(tmp_path.c_str());
+    throw std::runtime_error("manifest: cannot fsync " + tmp_path + ": " + err);
+  }
   ::close(fd);
   if (::rename(tmp_path.c_str(), final_path.c_str()) != 0) {
-    throw std::runtime_error("manifest: cannot rename " + tmp_path + ": " + std::strerror(errno));
+    const std::string err = std::strerror(errno);
+    ::unlink(tmp_path.c_str());
+    throw std::runtime_error("manifest: cannot rename " + tmp_path + ": " + err);
   }
   if (fsync) FsyncPath(dir, O_RDONLY | O_DIRECTORY);
 }

@@ -1,9 +1,13 @@
 #include <gtest/gtest.h>
+#include <sys/resource.h>
 
 #include <atomic>
 #include <condition_variable>
+#include <csignal>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <mutex>
 #include <thread>
 
@@ -422,3 +426,243 @@ TEST(DatasetWriter, SeveralCallerThreadsGetUniqueSeqsAndEverythingIsWritten) {
 }
 
 }  // namespace
+
+// Issue 30, fault table "disk full while a shard is written". RLIMIT_FSIZE stands in for a full disk: once
+// the current file would grow past the limit, write(2) writes what fits and then fails with EFBIG (SIGXFSZ is
+// ignored, as a process without a handler for it would otherwise be killed). The limit is lowered by the
+// writer thread itself just before a record of the second shard, so that the first shard completes and the
+// second one fails half-way through a record.
+class FileSizeLimit {
+ public:
+  FileSizeLimit() {
+    old_handler_ = std::signal(SIGXFSZ, SIG_IGN);
+    getrlimit(RLIMIT_FSIZE, &old_);
+  }
+  ~FileSizeLimit() {
+    setrlimit(RLIMIT_FSIZE, &old_);
+    std::signal(SIGXFSZ, old_handler_);
+  }
+  FileSizeLimit(const FileSizeLimit&) = delete;
+  FileSizeLimit& operator=(const FileSizeLimit&) = delete;
+  bool Lower(uint64_t bytes) const {
+    rlimit lim = old_;
+    lim.rlim_cur = static_cast<rlim_t>(bytes);
+    return setrlimit(RLIMIT_FSIZE, &lim) == 0;
+  }
+  void Restore() const { setrlimit(RLIMIT_FSIZE, &old_); }
+
+ private:
+  rlimit old_{};
+  void (*old_handler_)(int) = SIG_DFL;
+};
+
+TEST(DatasetWriter, DiskFullKeepsCompletedShardsAndNeverCompletesThePartialOne) {
+  cdc_test::TempDir tmp;
+  cdc::WriterConfig config = cdc_test::SmallConfig(tmp / "ds");
+  const cdc::LayoutParams p{config.image_width, config.image_height,
+                            config.max_ctrl_pts + cdc::kExtraKnotSlots, config.max_ctrl_pts,
+                            config.max_yaw_pts};
+  const uint64_t rs = cdc::RecordLayout::Compute(p).record_size;
+  config.shard_size_mb = (cdc::kHeaderSize + 4.5 * rs) / 1e6;  // 4 records per shard
+  // Record 6 is the third of shard 1: the disk is full half-way through it.
+  const uint64_t limit = cdc::kHeaderSize + 2 * rs + rs / 2;
+  FileSizeLimit fsize;
+  std::atomic<bool> lowered{false};
+  cdc::WriterHooks hooks;
+  hooks.before_write = [&](uint64_t seq) {
+    if (seq == 6) lowered = fsize.Lower(limit);
+  };
+  cdc::DatasetWriter writer(config, hooks);
+  const cdc::SyntheticGenerator gen(cdc_test::SmallSynthetic(8));
+  cdc::SyntheticRecord rec;
+  for (uint64_t i = 0; i < 7; ++i) {
+    gen.Generate(i, &rec);
+    ASSERT_TRUE(writer.Record(rec.record).ok()) << i;
+  }
+  while (!writer.stats().failed) std::this_thread::yield();
+  const std::string partial = config.output_dir + "/shard_000001.qdr.partial";
+  gen.Generate(7, &rec);
+  const cdc::RecordResult after = writer.Record(rec.record);
+  EXPECT_EQ(after.status, cdc::RecordStatus::kWriterFailed);
+  const cdc::FinalizeResult fin = writer.Finalize();
+  fsize.Restore();
+  ASSERT_TRUE(lowered.load());
+  EXPECT_FALSE(fin.ok);
+  // A clear error naming the file and the reason.
+  EXPECT_NE(fin.error.find("cannot write " + partial + ": File too large"), std::string::npos) << fin.error;
+  EXPECT_EQ(after.reason, fin.error);
+  EXPECT_EQ(fin.stats.written, 6u);
+  EXPECT_EQ(fin.stats.lost, 2u);  // the record being written and the one refused afterwards
+  EXPECT_EQ(fin.stats.shards_completed, 1u);
+
+  // The partial shard keeps its .partial name, holds its two complete records and a torn tail of exactly
+  // what fitted of the third; no *.tmp manifest is left behind.
+  EXPECT_TRUE(fs::exists(partial));
+  EXPECT_FALSE(fs::exists(config.output_dir + "/shard_000001.qdr"));
+  EXPECT_EQ(fs::file_size(partial), limit);
+  EXPECT_FALSE(fs::exists(config.output_dir + "/manifest.yaml.tmp"));
+
+  const cdc::DatasetReader reader(config.output_dir);
+  const cdc::Manifest& m = *reader.manifest();
+  EXPECT_EQ(m.status, cdc::DatasetStatus::kIncomplete);
+  EXPECT_EQ(m.writer_error, fin.error);
+  ASSERT_EQ(m.shards.size(), 1u);  // the manifest lists the completed shard only
+  EXPECT_EQ(m.shards[0].file, "shard_000000.qdr");
+  EXPECT_EQ(m.shards[0].records, 4u);
+  ASSERT_EQ(reader.shards().size(), 2u);
+  const cdc::ShardReader& done = reader.shards()[0];
+  const cdc::ShardReader& torn = reader.shards()[1];
+  EXPECT_FALSE(done.partial());
+  EXPECT_TRUE(torn.partial());
+  EXPECT_EQ(torn.num_records(), 2u);
+  EXPECT_EQ(torn.torn_tail_bytes(), rs / 2);
+  uint64_t i = 0;
+  for (const cdc::ShardReader& s : reader.shards()) {
+    for (uint64_t k = 0; k < s.num_records(); ++k, ++i) {
+      gen.Generate(i, &rec);
+      ExpectRecordEquals(rec.record, s.Decode(k), i);
+    }
+  }
+  const cdc::VerifyReport rep = reader.Verify();
+  EXPECT_TRUE(rep.errors.empty()) << rep.errors[0];
+  ASSERT_EQ(rep.warnings.size(), 2u);
+  EXPECT_EQ(rep.warnings[0], "dataset is incomplete: the writer failed: " + fin.error);
+  EXPECT_EQ(rep.warnings[1], "shard_000001.qdr.partial: torn tail of " + std::to_string(rs / 2) +
+                                 " bytes after record 2 (skipped)");
+  // Recovery cuts the torn record and completes the dataset with the 6 whole records.
+  const cdc::RecoverResult rr = cdc::RecoverDataset(config.output_dir);
+  EXPECT_EQ(rr.records, 6u);
+  const cdc::DatasetReader recovered(config.output_dir);
+  EXPECT_TRUE(recovered.Verify().clean());
+  EXPECT_EQ(recovered.num_records(), 6u);
+}
+
+TEST(DatasetWriter, DiskFullWhileWritingTheManifestLeavesTheOldOneAndNoTemporaryFile) {
+  cdc_test::TempDir tmp;
+  cdc::WriterConfig config = cdc_test::SmallConfig(tmp / "ds");
+  FileSizeLimit fsize;
+  cdc::DatasetWriter writer(config);
+  const std::string before = [&] {
+    std::ifstream in(config.output_dir + "/manifest.yaml");
+    return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  }();
+  ASSERT_TRUE(fsize.Lower(100));  // smaller than any manifest
+  const cdc::FinalizeResult fin = writer.Finalize();
+  fsize.Restore();
+  EXPECT_FALSE(fin.ok);
+  EXPECT_NE(
+      fin.error.find("manifest: cannot write " + config.output_dir + "/manifest.yaml.tmp: File too large"),
+      std::string::npos)
+      << fin.error;
+  EXPECT_FALSE(fs::exists(config.output_dir + "/manifest.yaml.tmp"));
+  std::ifstream in(config.output_dir + "/manifest.yaml");
+  EXPECT_EQ(std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()), before);
+  EXPECT_EQ(cdc::ReadManifest(config.output_dir + "/manifest.yaml").status, cdc::DatasetStatus::kIncomplete);
+}
+
+// A resumed collection run (docs/collect.md, "Resuming"): the unfinished episode's records are cut, then a
+// second writer appends to the same dataset. The result reads as one dataset: shard indices, seqs and counts
+// continue, the first run's records are untouched, and the new episode ids do not collide with the old ones.
+TEST(DatasetWriter, AppendContinuesATruncatedDatasetWithoutTouchingItsRecords) {
+  cdc_test::TempDir tmp;
+  cdc::WriterConfig config = cdc_test::SmallConfig(tmp / "ds");
+  const cdc::LayoutParams p{config.image_width, config.image_height,
+                            config.max_ctrl_pts + cdc::kExtraKnotSlots, config.max_ctrl_pts,
+                            config.max_yaw_pts};
+  const uint64_t rs = cdc::RecordLayout::Compute(p).record_size;
+  config.shard_size_mb = (cdc::kHeaderSize + 4.5 * rs) / 1e6;      // 4 records per shard
+  const cdc::SyntheticGenerator gen(cdc_test::SmallSynthetic(5));  // 7 records per episode, ids 0, 1, ...
+  cdc::SyntheticRecord rec;
+  {
+    cdc::DatasetWriter first(config);
+    first.SetRunInfo("seeds", "1,2");
+    for (uint64_t i = 0; i < 10; ++i) {  // episode 0 (7 records) and 3 records of episode 1
+      gen.Generate(i, &rec);
+      ASSERT_TRUE(first.Record(rec.record).ok());
+    }
+    ASSERT_TRUE(first.Finalize().ok);
+  }
+  const std::vector<uint8_t> shard0 = cdc_test::ReadBytes(tmp / "ds/shard_000000.qdr");
+  EXPECT_THROW(cdc::TruncateDataset(config.output_dir, 11), cdc::FormatError);
+  const cdc::RecoverResult cut = cdc::TruncateDataset(config.output_dir, 7);  // episode 1 did not finish
+  EXPECT_EQ(cut.records, 7u);
+  EXPECT_FALSE(fs::exists(tmp / "ds/shard_000002.qdr"));
+  EXPECT_EQ(fs::file_size(tmp / "ds/shard_000001.qdr"), cdc::kHeaderSize + 3 * rs);
+  {
+    const cdc::DatasetReader r(config.output_dir);
+    EXPECT_TRUE(r.Verify().clean());
+    EXPECT_EQ(r.manifest()->status, cdc::DatasetStatus::kRecovered);
+    EXPECT_EQ(r.manifest()->counts.submitted, 7u);
+    ASSERT_EQ(r.manifest()->episodes.size(), 1u);
+  }
+  // A plain writer still refuses the directory; an appending one continues it.
+  EXPECT_THROW(cdc::DatasetWriter refused(config), std::runtime_error);
+  {
+    cdc::DatasetWriter second(config, {}, cdc::OpenMode::kAppend);
+    second.SetRunInfo("seeds", "1,2");
+    for (uint64_t i = 7; i < 14; ++i) {  // episode 1 flown again, numbered from 0 by a fresh simulator
+      gen.Generate(i - 7, &rec);
+      const cdc::RecordResult r = second.Record(rec.record);
+      ASSERT_TRUE(r.ok()) << r.reason;
+      EXPECT_EQ(r.seq, i);
+    }
+    ASSERT_TRUE(second.Finalize().ok);
+  }
+  EXPECT_EQ(cdc_test::ReadBytes(tmp / "ds/shard_000000.qdr"), shard0);  // finished data untouched
+  const cdc::DatasetReader reader(config.output_dir);
+  EXPECT_TRUE(reader.Verify().clean());
+  EXPECT_EQ(reader.num_records(), 14u);
+  ASSERT_EQ(reader.shards().size(), 4u);  // 4 + 3 (cut) + 4 + 3
+  const cdc::Manifest& m = *reader.manifest();
+  EXPECT_EQ(m.status, cdc::DatasetStatus::kComplete);
+  EXPECT_EQ(m.counts.submitted, 14u);
+  EXPECT_EQ(m.counts.written, 14u);
+  ASSERT_EQ(m.episodes.size(), 2u);
+  EXPECT_EQ(m.episodes[0].episode_id, 0);
+  EXPECT_EQ(m.episodes[0].records, 7u);
+  EXPECT_EQ(m.episodes[1].episode_id, 1);  // shifted past the dataset's largest id
+  EXPECT_EQ(m.episodes[1].records, 7u);
+  const auto offset = std::find_if(m.run_info.begin(), m.run_info.end(),
+                                   [](const auto& kv) { return kv.first == "episode_id_offset"; });
+  ASSERT_NE(offset, m.run_info.end());
+  EXPECT_EQ(offset->second, "1");
+  const auto commits = std::find_if(m.run_info.begin(), m.run_info.end(),
+                                    [](const auto& kv) { return kv.first == "software_commits"; });
+  ASSERT_NE(commits, m.run_info.end());
+  EXPECT_EQ(commits->second, "test-commit");  // the same commit wrote both runs
+  uint64_t i = 0;
+  for (const cdc::ShardReader& s : reader.shards()) {
+    for (uint64_t k = 0; k < s.num_records(); ++k, ++i) {
+      const cdc::DecodedRecord d = s.Decode(k);
+      EXPECT_EQ(d.head.seq, i);
+      EXPECT_EQ(d.head.episode_id, i < 7 ? 0 : 1);
+    }
+  }
+}
+
+TEST(DatasetWriter, AppendRefusesADatasetItCannotContinueNamingWhy) {
+  cdc_test::TempDir tmp;
+  cdc::WriterConfig config = cdc_test::SmallConfig(tmp / "ds");
+  {
+    cdc::DatasetWriter first(config);
+    ASSERT_TRUE(first.Finalize().ok);
+  }
+  cdc::WriterConfig other = config;
+  other.image_width = 64;
+  try {
+    cdc::DatasetWriter w(other, {}, cdc::OpenMode::kAppend);
+    FAIL() << "appended to a dataset of another image size";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("its image_width is 32, this writer's is 64"), std::string::npos)
+        << e.what();
+  }
+  { cdc::DatasetWriter unfinished(config, {}, cdc::OpenMode::kAppend); }  // finalised by its destructor
+  cdc_test::WriteBytes(tmp / "ds/shard_000000.qdr.partial", {1, 2, 3});
+  try {
+    cdc::DatasetWriter w(config, {}, cdc::OpenMode::kAppend);
+    FAIL() << "appended beside a partial shard";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("partial shard shard_000000.qdr.partial"), std::string::npos)
+        << e.what();
+  }
+}

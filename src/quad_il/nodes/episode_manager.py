@@ -80,6 +80,7 @@ class EpisodeManager:
         rospy.wait_for_service("/tracker/goto")
         self.reset_srv = rospy.ServiceProxy("/sim/reset", ResetEpisode)
         self.log = EpisodeLog(f"{self.cfg.output_dir}/episodes.csv")
+        self.resumed_at = 0  # finished episodes found in episodes.csv at start (a resumed run)
 
     # ---- subscriber threads ----
     def _on_status(self, msg: EpisodeStatus) -> None:
@@ -230,8 +231,19 @@ class EpisodeManager:
 
     def run(self) -> int:
         stop = StopCondition(self.cfg)
-        total, finished = 0, 0
+        # A resumed run (collect.launch resume:=true) continues after the finished episodes of episodes.csv,
+        # which quad_il.collection.resume has checked against the dataset before any node started.
+        previous = EpisodeLog.read(self.log.path)
+        total, finished = sum(o.samples for o in previous), len(previous)
         counts: dict[str, int] = {}
+        for o in previous:
+            counts[o.outcome] = counts.get(o.outcome, 0) + 1
+        if previous:
+            rospy.loginfo(
+                f"episode_manager: resuming after {finished} finished episodes ({total} samples) of "
+                f"{self.log.path}"
+            )
+        self.resumed_at = finished
         wall0 = time.monotonic()
         rospy.loginfo(
             f"episode_manager: {self.cfg.episodes} episodes, seeds "
@@ -276,7 +288,12 @@ class EpisodeManager:
         """<output_dir>/collect_summary.yaml: what the run did and how fast (sim seconds per wall second)."""
         first = self.frames.first_frame_s
         sim_s = (self.frames.last_frame_s - first) if first is not None else 0.0
+        stop_done, _ = StopCondition(self.cfg).done(finished, samples)
         summary = {
+            # the run reached its stop condition (false after an interruption: resume:=true continues it)
+            "complete": bool(stop_done or counts.get("stopped", 0)),
+            "episodes_planned": self.cfg.episodes,
+            "resumed_at_episode": self.resumed_at,
             "episodes": finished,
             "samples": samples,
             "outcomes": counts,

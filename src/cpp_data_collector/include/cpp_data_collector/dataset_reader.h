@@ -119,4 +119,12 @@ struct RecoverResult {
 // stay reported by Verify). Throws FormatError for a dataset that is complete or has no manifest.
 RecoverResult RecoverDataset(const std::string& dir);
 
+// Keeps the first `keep_records` records (in shard order) of a finalised (complete or recovered) dataset and
+// removes the rest: the shard holding the cut is truncated after its last kept record (removed when nothing
+// is left), later shards are removed, episodes and counts are recounted and the manifest is rewritten with
+// status "recovered". Used to drop the records of an episode that did not finish before a collection run is
+// resumed (quad_il.collection.resume). Throws FormatError for an incomplete dataset (recover it first), a
+// *.partial shard, a record failing its CRC among those kept, or keep_records > the records present.
+RecoverResult TruncateDataset(const std::string& dir, uint64_t keep_records);
+
 }  // namespace cpp_data_collector

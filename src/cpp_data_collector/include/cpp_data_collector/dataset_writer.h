@@ -66,12 +66,22 @@ struct WriterHooks {
   std::function<void(uint64_t seq)> before_write;
 };
 
+// kCreate: output_dir must not hold a dataset yet. kAppend: continue the finalised (complete or recovered)
+// dataset in output_dir, or start one if it has none; used by a resumed collection run (docs/collect.md,
+// "Resuming"). Appending continues the shard indices, seqs, counts and episode list; the new records'
+// episode ids are shifted by (largest episode id already in the dataset) + 1, because a restarted simulator
+// numbers its episodes from the start again, so that (world_seed, episode_id) still names one flight. The
+// shift is stored in the manifest's run_info (episode_id_offset; appended_runs counts the appends).
+enum class OpenMode { kCreate, kAppend };
+
 class DatasetWriter {
  public:
-  // Validates the config, creates output_dir (it must not already hold a dataset: manifest.yaml or shard_*),
-  // preallocates queue_capacity slots, writes the initial manifest (status incomplete) and starts the writer
-  // thread. Throws std::invalid_argument (config) or std::runtime_error (file system) with the reason.
-  explicit DatasetWriter(const WriterConfig& config, WriterHooks hooks = {});
+  // Validates the config, creates output_dir (kCreate: it must not already hold a dataset: manifest.yaml or
+  // shard_*; kAppend: see OpenMode), preallocates queue_capacity slots, writes the initial manifest (status
+  // incomplete) and starts the writer thread. Throws std::invalid_argument (config) or std::runtime_error
+  // (file system, or a dataset that cannot be appended to) with the reason.
+  explicit DatasetWriter(const WriterConfig& config, WriterHooks hooks = {},
+                         OpenMode mode = OpenMode::kCreate);
   ~DatasetWriter();
   DatasetWriter(const DatasetWriter&) = delete;
   DatasetWriter& operator=(const DatasetWriter&) = delete;

@@ -16,12 +16,15 @@ constexpr char kUsage[] =
     "usage: read_dataset verify DIR\n"
     "       read_dataset dump DIR [--format text|jsonl] [--depth none|crc|full] [--first N] [--count N]\n"
     "       read_dataset recover DIR\n"
+    "       read_dataset truncate DIR --keep N\n"
     "verify   checks every record's CRC, torn tails and the manifest; prints a report.\n"
     "         exit 0 clean, 3 only warnings (incomplete dataset, torn tail of a partial shard), 1 errors\n"
     "dump     prints records (jsonl: one JSON object per line, doubles with 17 significant digits, NaN and\n"
     "         Infinity as Python's json reads them, strings byte-wise with \\u00XX for bytes >= 0x80)\n"
     "recover  repairs a dataset whose writer died: cuts torn tails, renames *.partial shards, rewrites the\n"
     "         manifest with status recovered\n"
+    "truncate keeps the first N records of a finalised dataset and removes the rest (the records of an\n"
+    "         episode that did not finish, before a collection run is resumed); manifest status recovered\n"
     "exit 2: bad arguments, or DIR is not a readable dataset.\n";
 
 std::string Num(double v) {
@@ -148,6 +151,7 @@ int main(int argc, char** argv) {
   std::string depth = "crc";
   uint64_t first = 0;
   uint64_t count = UINT64_MAX;
+  uint64_t keep = UINT64_MAX;
   for (int i = 3; i < argc; ++i) {
     const std::string flag = argv[i];
     if (i + 1 >= argc) {
@@ -164,6 +168,8 @@ int main(int argc, char** argv) {
         first = std::stoull(v);
       } else if (flag == "--count") {
         count = std::stoull(v);
+      } else if (flag == "--keep" && command == "truncate") {
+        keep = std::stoull(v);
       } else {
         throw std::invalid_argument("bad option");
       }
@@ -177,6 +183,15 @@ int main(int argc, char** argv) {
     if (command == "dump") return Dump(dir, format, depth, first, count);
     if (command == "recover") {
       const cdc::RecoverResult r = cdc::RecoverDataset(dir);
+      for (const auto& a : r.actions) std::printf("%s\n", a.c_str());
+      return 0;
+    }
+    if (command == "truncate") {
+      if (keep == UINT64_MAX) {
+        std::cerr << "read_dataset: truncate needs --keep N\n" << kUsage;
+        return 2;
+      }
+      const cdc::RecoverResult r = cdc::TruncateDataset(dir, keep);
       for (const auto& a : r.actions) std::printf("%s\n", a.c_str());
       return 0;
     }

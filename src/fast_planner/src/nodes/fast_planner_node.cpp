@@ -84,8 +84,8 @@ class PlanCollector : public PlanObserver {
   // `config_path`: a writer YAML (config/collector.yaml); `output_dir` overrides its output_dir. The writer
   // itself is created at the first camera_info (the intrinsics go into every shard header).
   PlanCollector(const std::string& config_path, const std::string& output_dir, const std::string& commit,
-                std::vector<std::pair<std::string, std::string>> run_info)
-      : run_info_(std::move(run_info)) {
+                std::vector<std::pair<std::string, std::string>> run_info, cpp_data_collector::OpenMode mode)
+      : run_info_(std::move(run_info)), mode_(mode) {
     config_ = config_path.empty() ? cpp_data_collector::WriterConfig()
                                   : cpp_data_collector::LoadWriterConfigFile(config_path);
     config_.output_dir = output_dir;
@@ -93,7 +93,8 @@ class PlanCollector : public PlanObserver {
     config_.Validate();
     // Refuse an existing dataset now (the writer would too, but only at the first camera_info).
     namespace fs = std::filesystem;
-    if (fs::exists(fs::path(output_dir) / "manifest.yaml")) {
+    if (mode_ == cpp_data_collector::OpenMode::kCreate &&
+        fs::exists(fs::path(output_dir) / "manifest.yaml")) {
       throw std::runtime_error("collector output directory " + output_dir +
                                " already holds a dataset (manifest.yaml); choose another output_dir");
     }
@@ -112,7 +113,8 @@ class PlanCollector : public PlanObserver {
     config_.camera_fy_px = k.fy;
     config_.camera_cx_px = k.cx;
     config_.camera_cy_px = k.cy;
-    writer_ = std::make_unique<cpp_data_collector::DatasetWriter>(config_);
+    writer_ = std::make_unique<cpp_data_collector::DatasetWriter>(config_, cpp_data_collector::WriterHooks{},
+                                                                  mode_);
     for (const auto& [key, value] : run_info_) writer_->SetRunInfo(key, value);
     ROS_INFO("fast_planner: recording every plan to %s (%ux%u, queue %u, policy %s, commit %s)",
              config_.output_dir.c_str(), config_.image_width, config_.image_height, config_.queue_capacity,
@@ -235,6 +237,7 @@ class PlanCollector : public PlanObserver {
 
   cpp_data_collector::WriterConfig config_;
   std::vector<std::pair<std::string, std::string>> run_info_;
+  cpp_data_collector::OpenMode mode_;
   std::unique_ptr<cpp_data_collector::DatasetWriter> writer_;
   cpp_data_collector::BsplineData bspline_;
   int64_t episode_id_ = -1;
@@ -280,9 +283,12 @@ class FastPlannerNode {
              label_every_frame_ ? "; labeller mode (plans every frame, never flies)" : "");
     const std::string out_dir = pnh.param<std::string>("collector_output_dir", "");
     if (!out_dir.empty()) {
-      collector_ =
-          std::make_shared<PlanCollector>(pnh.param<std::string>("collector_config", ""), out_dir,
-                                          pnh.param<std::string>("collector_commit", ""), ReadRunInfo(pnh));
+      collector_ = std::make_shared<PlanCollector>(
+          pnh.param<std::string>("collector_config", ""), out_dir,
+          pnh.param<std::string>("collector_commit", ""), ReadRunInfo(pnh),
+          // collect.launch resume:=true (docs/collect.md, "Resuming")
+          pnh.param<bool>("collector_append", false) ? cpp_data_collector::OpenMode::kAppend
+                                                     : cpp_data_collector::OpenMode::kCreate);
       replanner_.manager().SetObserver(collector_);
       const double period = pnh.param<double>("collector_stats_period_s", 30.0);
       if (period > 0.0) {

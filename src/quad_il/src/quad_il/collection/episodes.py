@@ -6,6 +6,7 @@ Everything here is ROS-free and deterministic given the seed, so the same seeds 
 from __future__ import annotations
 
 import csv
+import io
 import math
 import os
 from dataclasses import asdict, dataclass
@@ -264,16 +265,40 @@ class EpisodeLog:
 
     @staticmethod
     def read(path: str | os.PathLike) -> list[EpisodeOutcome]:
-        with open(path, newline="") as f:
-            rows = list(csv.DictReader(f))
-        return [
-            EpisodeOutcome(
-                int(r["index"]),
-                int(r["seed"]),
-                r["outcome"],
-                r["reason"],
-                float(r["sim_duration_s"]),
-                int(r["samples"]),
-            )
-            for r in rows
-        ]
+        """Every row. A last row cut short by a crash (no line end: rows are fsynced whole, so only a kill
+        inside write(2) leaves one) is ignored; any other bad row is an error naming the file and line."""
+        text = Path(path).read_text()
+        if text and not text.endswith("\n"):
+            text = text[: text.rfind("\n") + 1]  # the torn last row
+        out = []
+        reader = csv.DictReader(io.StringIO(text, newline=""))
+        for r in reader:
+            try:
+                out.append(
+                    EpisodeOutcome(
+                        int(r["index"]),
+                        int(r["seed"]),
+                        r["outcome"],
+                        r["reason"],
+                        float(r["sim_duration_s"]),
+                        int(r["samples"]),
+                    )
+                )
+            except (TypeError, ValueError, KeyError):
+                raise ValueError(f"{path}: line {reader.line_num} is not an episode row: {r}") from None
+        return out
+
+    @staticmethod
+    def rewrite(path: str | os.PathLike, outcomes: list[EpisodeOutcome]) -> None:
+        """Replaces the file atomically with these rows (resuming drops the rows of episodes whose records are
+        not all on disk)."""
+        p = Path(path)
+        tmp = p.with_name(p.name + ".tmp")
+        with open(tmp, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=EpisodeLog.FIELDS)
+            w.writeheader()
+            for o in outcomes:
+                w.writerow(asdict(o))
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, p)

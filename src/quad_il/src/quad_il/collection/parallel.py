@@ -12,6 +12,8 @@ seeds, outcome counts, records and wall times, and the totals. The training scri
 dataset path (quad_il.learning.dataset.expand_paths reads every worker dataset under it).
 
 Ctrl-C (SIGINT) is forwarded to every worker: each finalises its dataset and collection.yaml is still written.
+A worker that stopped before its last episode (its master died, a crash) makes the command exit 1; the same
+command with --resume completes every worker's run (collect.launch resume:=true, docs/collect.md "Resuming").
 Progress: every worker's per-episode line, prefixed with its index.
 """
 
@@ -78,7 +80,7 @@ def plan_workers(
 
 def _parse_launch_args(items: Sequence[str]) -> dict[str, str]:
     out: dict[str, str] = {}
-    reserved = {"output_dir", "seeds", "episodes"}
+    reserved = {"output_dir", "seeds", "episodes", "resume"}
     for item in items:
         if ":=" not in item:
             raise ParallelError(f"--launch-arg '{item}': expected key:=value (a collect.launch argument)")
@@ -107,13 +109,17 @@ def _summary_of(worker_dir: Path) -> dict:
         return yaml.safe_load(fh) or {}
 
 
-def run_parallel(plans: list[WorkerPlan], out: Path, timeout_s: float) -> dict:
+def run_parallel(plans: list[WorkerPlan], out: Path, timeout_s: float, resume: bool = False) -> dict:
+    """resume: every worker continues the run its directory holds (collect.launch resume:=true; the same
+    --workers, --seeds and --episodes give every worker the same arguments, which the launch checks)."""
     out.mkdir(parents=True, exist_ok=True)
     for p in plans:
-        if p.out_dir.exists() and any(p.out_dir.iterdir()):
+        if resume:
+            p.extra["resume"] = "true"
+        elif p.out_dir.exists() and any(p.out_dir.iterdir()):
             raise ParallelError(
                 f"{p.out_dir} already exists and is not empty: the parallel collector never overwrites a "
-                "dataset; pass another --out or remove it"
+                "dataset; pass another --out, remove it, or --resume to complete the collection it holds"
             )
     procs: list[tuple[WorkerPlan, subprocess.Popen, threading.Thread]] = []
     t0 = time.monotonic()
@@ -225,6 +231,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="extra collect.launch argument",
     )
     ap.add_argument("--timeout-s", type=float, default=4 * 3600.0, help="wall-time limit of the whole run")
+    ap.add_argument(
+        "--resume",
+        action="store_true",
+        help="complete an interrupted collection in --out (same --workers, --seeds, --episodes)",
+    )
     args = ap.parse_args(argv)
     try:
         plans = plan_workers(
@@ -234,7 +245,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             args.out.resolve(),
             _parse_launch_args(args.launch_arg),
         )
-        result = run_parallel(plans, args.out.resolve(), args.timeout_s)
+        result = run_parallel(plans, args.out.resolve(), args.timeout_s, resume=args.resume)
     except ParallelError as exc:
         print(f"parallel collection: error: {exc}", file=sys.stderr)
         return 2
@@ -248,6 +259,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     if failed and not result["interrupted"]:
         print(
             f"parallel collection: worker(s) {failed} exited with an error (see their logs)", file=sys.stderr
+        )
+        return 1
+    # roslaunch exits 0 even when its master died: the worker's own summary says whether its run completed.
+    unfinished = [w["index"] for w in result["workers"] if not w["summary"].get("complete", True)]
+    if unfinished and not result["interrupted"]:
+        print(
+            f"parallel collection: worker(s) {unfinished} stopped before their last episode (see their "
+            "logs); the same command with --resume completes them",
+            file=sys.stderr,
         )
         return 1
     return 0

@@ -3,8 +3,11 @@
 collect.launch evaluates these commands while it parses (`<param command=...>`), before any node starts, so a
 bad argument stops the launch with a clear message and nothing is overwritten:
 
-    python -m quad_il.collection.prepare output-dir DIR
-        checks DIR (it must not hold a dataset), creates it and prints its absolute path;
+    python -m quad_il.collection.prepare output-dir DIR [--resume] [--run KEY=VALUE ...]
+        checks DIR (it must not hold a dataset, unless --resume), creates it and prints its absolute path;
+        --run gives the run's identity (launch arguments and config paths: quad_il.collection.resume), written
+        to DIR/collect_run.yaml; with --resume, DIR is made ready to continue the run it holds (the
+        unfinished episode's records cut, a killed writer's dataset recovered; quad_il.collection.resume);
     python -m quad_il.collection.prepare sim-config DIR --base sim.yaml --time-mode M [--factor F]
         --consumers a,b [--lockstep-timeout-s T]
         writes DIR/sim_config.yaml (the base simulator config with the run's time mode and lockstep consumers,
@@ -68,16 +71,22 @@ def dataset_files(d: Path) -> list[str]:
     return names
 
 
-def prepare_output_dir(text: str, root: Path | None = None) -> Path:
+def prepare_output_dir(
+    text: str, root: Path | None = None, resume: bool = False, run_args: dict[str, str] | None = None
+) -> Path:
+    """Checks and creates the output directory. run_args (the launch arguments of
+    quad_il.collection.resume.run_identity) are recorded in DIR/collect_run.yaml; resume: DIR may hold the
+    run to continue, which is made ready for it when run_args are given (collect.launch gives them in one
+    of its calls)."""
     d = resolve_output_dir(text, root)
     if d.exists() and not d.is_dir():
         raise PrepareError(f"output_dir {d} exists and is not a directory")
     existing = dataset_files(d)
-    if existing:
+    if existing and not resume:
         raise PrepareError(
             f"output_dir {d} already holds a dataset ({', '.join(existing[:3])}"
             f"{', ...' if len(existing) > 3 else ''}); collect.launch never overwrites one: "
-            "pass another output_dir:=DIR or remove it"
+            "pass another output_dir:=DIR, remove it, or resume:=true to complete the run it holds"
         )
     try:
         d.mkdir(parents=True, exist_ok=True)
@@ -85,7 +94,50 @@ def prepare_output_dir(text: str, root: Path | None = None) -> Path:
         raise PrepareError(f"output_dir {d} cannot be created: {exc.strerror}") from None
     if not os.access(d, os.W_OK):
         raise PrepareError(f"output_dir {d} is not writable")
+    if run_args is not None:
+        from quad_il.collection import resume as resuming
+
+        try:
+            identity = resuming.run_identity(run_args)
+            if resume:
+                plan = resuming.plan_resume(d, identity, collect_params(run_args))
+                for action in plan.actions:
+                    print(f"collect.launch: resume: {action}", file=sys.stderr)
+            else:
+                resuming.write_run_file(d, identity)
+        except ValueError as exc:  # ResumeError, and bad seeds / config values
+            raise PrepareError(str(exc)) from None
     return d
+
+
+def collect_params(run_args: dict[str, str]) -> dict[str, object]:
+    """The episode manager's parameters (episodes.manager_config) from the launch arguments."""
+    return {
+        "config": run_args["collect_config"],
+        "seeds": run_args["seeds"],
+        "episodes": run_args["episodes"],
+        "max_samples": run_args["max_samples"],
+        "episode_timeout_s": run_args["episode_timeout_s"],
+    }
+
+
+def parse_bool(name: str, text: str) -> bool:
+    v = str(text).strip().lower()
+    if v not in ("true", "false", "1", "0"):
+        raise PrepareError(f"{name} '{text}' is not true or false")
+    return v in ("true", "1")
+
+
+def parse_run_args(items: list[str]) -> dict[str, str] | None:
+    if not items:
+        return None
+    out = {}
+    for item in items:
+        if "=" not in item:
+            raise PrepareError(f"--run '{item}': expected KEY=VALUE")
+        k, v = item.split("=", 1)
+        out[k] = v
+    return out
 
 
 def _absolute(path_text: str, base_dir: Path) -> str:
@@ -162,6 +214,8 @@ def main(argv: list[str] | None = None) -> int:
     sub = ap.add_subparsers(dest="cmd", required=True)
     a = sub.add_parser("output-dir")
     a.add_argument("dir")
+    a.add_argument("--resume", default="false", help="true: continue the run DIR holds")
+    a.add_argument("--run", action="append", default=[], metavar="KEY=VALUE", help="the run's identity")
     b = sub.add_parser("sim-config")
     b.add_argument("dir")
     b.add_argument("--base", required=True)
@@ -169,13 +223,18 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument("--factor", type=float, default=1.0)
     b.add_argument("--consumers", default="")
     b.add_argument("--lockstep-timeout-s", type=float, default=20.0)
+    b.add_argument("--resume", default="false", help="true: DIR may hold the run being resumed")
     sub.add_parser("commit")
     args = ap.parse_args(argv)
     try:
         if args.cmd == "output-dir":
-            out = str(prepare_output_dir(args.dir))
+            out = str(
+                prepare_output_dir(
+                    args.dir, resume=parse_bool("resume", args.resume), run_args=parse_run_args(args.run)
+                )
+            )
         elif args.cmd == "sim-config":
-            d = prepare_output_dir(args.dir)
+            d = prepare_output_dir(args.dir, resume=parse_bool("resume", args.resume))
             consumers = [c for c in args.consumers.replace(",", " ").split() if c]
             out = str(
                 make_sim_config(

@@ -152,10 +152,20 @@ def write_episode(directory: str | Path, episode_id: int, records: Sequence[Reco
         raise DatasetError(f"{final} already exists; episodes are written once")
     arrays = records_to_arrays(records)
     partial = final.with_name(final.name + PARTIAL_SUFFIX)
-    with open(partial, "wb") as fh:
-        np.savez(fh, **arrays)
-        fh.flush()
-        os.fsync(fh.fileno())
+    try:
+        with open(partial, "wb") as fh:
+            np.savez(fh, **arrays)
+            fh.flush()
+            os.fsync(fh.fileno())
+    except OSError as e:
+        # Disk full (ENOSPC, or EFBIG past RLIMIT_FSIZE) or an I/O error: the torn file is removed (it
+        # would only ever be reported as a leftover .partial) and the error names the file; episodes
+        # written before stay complete.
+        partial.unlink(missing_ok=True)
+        raise DatasetError(
+            f"cannot write episode {episode_id} to {partial}: {e.strerror or e}; the partial file was "
+            "removed, earlier episodes are complete"
+        ) from None
     os.replace(partial, final)
     _fsync_dir(d)
     return final
