@@ -8,12 +8,16 @@ the node acts on it and releases it with `ack`. What the node does at a frame th
 sim time in every run, whatever the machine's load. Without lockstep (a free-running simulator) the same calls
 just return the newest frame and acknowledge nothing.
 
-Start-up: the simulator starts stepping once every consumer's FrameAck publisher and one depth subscriber are
-connected, not this node's frame subscription (camera_info), so its first frames may go out before that is
-connected; it then waits for an acknowledgement of a frame this node never got. Acknowledgements are
-cumulative: the node acknowledges blindly the first STARTUP_ACK_S of sim time after the simulator's first
-status (it takes no decision there), once its own frame subscription is connected; the first frame it holds
-comes after that, in every run.
+Start-up: the simulator starts stepping once every consumer's FrameAck publisher delivers to it and every
+topic a consumer has registered for (its frames, odometry, clock) is connected (quad_sim/lockstep_peers.h,
+issue 30), so a consumer normally gets the episode's first frame. The node still takes no decision in the
+first STARTUP_ACK_S of sim time after the simulator's first status and acknowledges that stretch blindly
+(cumulative acknowledgements) if no frame arrives, e.g. beside a simulator that was already stepping; the
+first frame it holds comes after it, in every run.
+
+Every lockstep wait of the simulator that ends by timeout is counted in its SimStats (published before every
+depth frame in lockstep): a consumer holding a frame can read the counts up to it (the evaluation's runner
+records them per episode, EpisodeResult.lockstep_timeouts).
 """
 
 from __future__ import annotations

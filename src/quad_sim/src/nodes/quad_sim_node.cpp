@@ -4,6 +4,7 @@
 // quad_sim_core.
 //
 // Private parameters: ~config (path of sim.yaml, required), ~world_seed (int, -1: world.seed of the config).
+#include "quad_sim/lockstep_peers.h"
 #include "quad_sim/math_utils.h"
 #include "quad_sim/simulator.h"
 
@@ -16,6 +17,8 @@
 #include <quad_msgs/SO3Command.h>
 #include <quad_msgs/SimStats.h>
 #include <quad_msgs/TRPYCommand.h>
+#include <ros/master.h>
+#include <ros/network.h>
 #include <ros/ros.h>
 #include <rosgraph_msgs/Clock.h>
 #include <sensor_msgs/CameraInfo.h>
@@ -23,9 +26,9 @@
 #include <sensor_msgs/PointCloud2.h>
 #include <sensor_msgs/point_cloud2_iterator.h>
 #include <std_msgs/Float64.h>
-#include <tf2_ros/static_transform_broadcaster.h>
-#include <tf2_ros/transform_broadcaster.h>
+#include <tf2_msgs/TFMessage.h>
 #include <visualization_msgs/MarkerArray.h>
+#include <xmlrpcpp/XmlRpcClient.h>
 
 #include <chrono>
 #include <condition_variable>
@@ -34,6 +37,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <set>
 #include <string>
 #include <thread>
 
@@ -89,15 +93,21 @@ class QuadSimNode {
             static_cast<uint64_t>(std::llround(1.0 / (config.physics_dt_s * config.odometry_rate_hz)))),
         steps_per_clock_(
             std::max<uint64_t>(1, std::llround(config.time.clock_period_s / config.physics_dt_s))) {
-    clock_pub_ = nh_.advertise<rosgraph_msgs::Clock>("/clock", 10);
-    odom_pub_ = nh_.advertise<nav_msgs::Odometry>("odom", 100);
-    depth_pub_ = nh_.advertise<sensor_msgs::Image>("camera/depth/image", 10);
-    info_pub_ = nh_.advertise<sensor_msgs::CameraInfo>("camera/depth/camera_info", 10);
+    // The lockstep start-up barrier needs to know who is connected to the topics lockstep depends on, by node
+    // name (quad_sim/lockstep_peers.h).
+    clock_pub_ = AdvertiseTracked<rosgraph_msgs::Clock>("/clock", 10);
+    odom_pub_ = AdvertiseTracked<nav_msgs::Odometry>("odom", 100);
+    depth_pub_ = AdvertiseTracked<sensor_msgs::Image>("camera/depth/image", 10);
+    info_pub_ = AdvertiseTracked<sensor_msgs::CameraInfo>("camera/depth/camera_info", 10);
+    // TF as tf2_ros's broadcasters publish it, tracked too: a consumer looking up the camera mount before its
+    // /tf_static connection is up waits in sim time, which does not advance while it holds the frame.
+    tf_pub_ = AdvertiseTracked<tf2_msgs::TFMessage>("/tf", 100);
+    tf_static_pub_ = AdvertiseTracked<tf2_msgs::TFMessage>("/tf_static", 1, true);
     status_pub_ = nh_.advertise<quad_msgs::EpisodeStatus>("sim/status", 10, true);
     markers_pub_ = nh_.advertise<visualization_msgs::MarkerArray>("sim/world_markers", 1, true);
     voxel_pub_ = nh_.advertise<sensor_msgs::PointCloud2>("sim/voxel_map", 1, true);
     z_offset_pub_ = nh_.advertise<std_msgs::Float64>("sim/z_offset", 1, true);
-    stats_pub_ = nh_.advertise<quad_msgs::SimStats>("sim/stats", 10);
+    stats_pub_ = nh_.advertise<quad_msgs::SimStats>("sim/stats", 100);
     // Lockstep round trips are latency bound: disable Nagle's algorithm on every input.
     const ros::TransportHints hints = ros::TransportHints().tcpNoDelay();
     so3_sub_ = nh_.subscribe("so3_cmd", 10, &QuadSimNode::OnSo3, this, hints);
@@ -129,6 +139,9 @@ class QuadSimNode {
         if (lockstep && config_.lockstep.wait_for_command) WaitForCommand(now);
       }
       if (depth_due) {
+        // In lockstep the run statistics go out before every frame: a consumer holding a frame has the
+        // timeout counts up to it (the evaluation's runner counts each episode's timeouts this way).
+        if (lockstep && !config_.lockstep.depth_consumers.empty()) PublishStats();
         PublishDepth(now);
         if (lockstep && !config_.lockstep.depth_consumers.empty()) WaitForAcks(now);
       }
@@ -307,32 +320,135 @@ class QuadSimNode {
   }
 
   // In lockstep, the first step of an episode waits until the command sources and depth consumers are
-  // connected (a command publisher, a depth subscriber and one FrameAck publisher per named consumer), so
-  // that no message of the episode is lost to a connection still being set up.
+  // connected, so that no message of the episode is lost to a connection still being set up: every FrameAck
+  // publisher delivers to the simulator and receives frames, a command publisher is connected, and every
+  // topic a participant has registered for is connected to it (CheckLockstepPeers says exactly what is waited
+  // for and why counting connections was not enough).
   void WaitForLockstepPeers() {
     if (config_.time.mode != quad_sim::TimeMode::kLockstep) return;
-    const bool need_cmd = config_.lockstep.wait_for_command;
-    const bool need_ack = !config_.lockstep.depth_consumers.empty();
-    if (!need_cmd && !need_ack) return;
-    bool logged = false;
+    quad_sim::LockstepNeeds needs;
+    needs.odom_topic = odom_pub_.getTopic();
+    needs.image_topic = depth_pub_.getTopic();
+    needs.frame_topics = {depth_pub_.getTopic(), info_pub_.getTopic()};
+    needs.num_depth_consumers = static_cast<int>(config_.lockstep.depth_consumers.size());
+    needs.wait_for_command = config_.lockstep.wait_for_command;
+    if (!needs.wait_for_command && needs.num_depth_consumers == 0) return;
+    const auto t0 = std::chrono::steady_clock::now();
+    auto next_log = t0 + std::chrono::seconds(5);
+    std::set<std::string> delivering;  // confirmed once: a publisher's accepted connection stays
+    std::string waited_for;
     while (ros::ok() && !ResetPending()) {
-      const bool cmd_ok = !need_cmd || (odom_pub_.getNumSubscribers() > 0 &&
-                                        so3_sub_.getNumPublishers() + trpy_sub_.getNumPublishers() > 0);
-      // Every consumer is a node of its own with a FrameAck publisher: wait until all of them are
-      // connected, so that no consumer's first acknowledgement is lost (with "any one", a consumer that
-      // subscribed to frames before the simulator had connected to its publisher stalled the simulator for a
-      // whole lockstep timeout at the first frame).
-      const bool ack_ok =
-          !need_ack || (depth_pub_.getNumSubscribers() > 0 &&
-                        ack_sub_.getNumPublishers() >= config_.lockstep.depth_consumers.size());
-      if (cmd_ok && ack_ok) return;
-      if (!logged) {
-        ROS_INFO("quad_sim lockstep: waiting for %s%s%s to connect", need_cmd ? "a command publisher" : "",
-                 need_cmd && need_ack ? " and " : "", need_ack ? "the depth consumers" : "");
-        logged = true;
+      quad_sim::LockstepPeers peers = GatherPeers(&delivering);
+      const quad_sim::LockstepPeerCheck check = quad_sim::CheckLockstepPeers(peers, needs);
+      if (check.ready) break;
+      if (waited_for.empty()) {
+        ROS_INFO("quad_sim lockstep: waiting for the lockstep peers: %s", check.missing.c_str());
+      } else if (std::chrono::steady_clock::now() > next_log) {
+        ROS_INFO("quad_sim lockstep: still waiting for the lockstep peers: %s", check.missing.c_str());
+        next_log += std::chrono::seconds(5);
       }
+      waited_for = check.missing;
       std::this_thread::sleep_for(std::chrono::milliseconds(20));
     }
+    if (!waited_for.empty()) {
+      ROS_INFO("quad_sim lockstep: peers connected after %.3f s (last waited for: %s)",
+               std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
+               waited_for.c_str());
+    }
+  }
+
+  // Who is registered (the master's system state) and who is connected (our publishers' subscriber links;
+  // for the FrameAck publishers, their own bus information).
+  quad_sim::LockstepPeers GatherPeers(std::set<std::string>* delivering) {
+    quad_sim::LockstepPeers peers;
+    {
+      std::lock_guard<std::mutex> lock(peers_mu_);
+      for (const auto& [topic, nodes] : connected_) {
+        for (const auto& [node, n] : nodes) {
+          if (n > 0) peers.connected_subscribers[topic].insert(node);
+        }
+      }
+    }
+    peers.command_publishers_connected =
+        static_cast<int>(so3_sub_.getNumPublishers() + trpy_sub_.getNumPublishers());
+    XmlRpc::XmlRpcValue req, res, state;
+    req[0] = ros::this_node::getName();
+    if (!ros::master::execute("getSystemState", req, res, state, false)) return peers;
+    const std::string me = ros::this_node::getName();
+    const std::set<std::string> tracked = {clock_pub_.getTopic(), odom_pub_.getTopic(),
+                                           depth_pub_.getTopic(), info_pub_.getTopic(),
+                                           tf_pub_.getTopic(),    tf_static_pub_.getTopic()};
+    const std::string ack_topic = ack_sub_.getTopic();
+    const std::set<std::string> cmd_topics = {so3_sub_.getTopic(), trpy_sub_.getTopic()};
+    auto nodes_of = [](XmlRpc::XmlRpcValue& entry) {
+      std::set<std::string> out;
+      for (int j = 0; j < entry[1].size(); ++j) out.insert(static_cast<std::string>(entry[1][j]));
+      return out;
+    };
+    XmlRpc::XmlRpcValue& pubs = state[0];
+    for (int i = 0; i < pubs.size(); ++i) {
+      const std::string topic = pubs[i][0];
+      if (topic == ack_topic) {
+        for (const std::string& n : nodes_of(pubs[i])) {
+          if (n != me) peers.ack_publishers.insert(n);
+        }
+      } else if (cmd_topics.count(topic) > 0) {
+        for (const std::string& n : nodes_of(pubs[i])) peers.command_publishers.insert(n);
+      }
+    }
+    XmlRpc::XmlRpcValue& subs = state[1];
+    for (int i = 0; i < subs.size(); ++i) {
+      const std::string topic = subs[i][0];
+      if (tracked.count(topic) > 0) peers.registered_subscribers[topic] = nodes_of(subs[i]);
+    }
+    for (const std::string& n : peers.ack_publishers) {
+      if (delivering->count(n) == 0 && PublisherDeliversTo(n, ack_topic, me)) delivering->insert(n);
+      if (delivering->count(n) > 0) peers.ack_publishers_delivering.insert(n);
+    }
+    return peers;
+  }
+
+  // True if `node`'s own bus information (its getBusInfo XML-RPC call) lists an accepted outgoing connection
+  // on `topic` to `subscriber`: only then does a message it publishes reach that subscriber.
+  static bool PublisherDeliversTo(const std::string& node, const std::string& topic,
+                                  const std::string& subscriber) {
+    XmlRpc::XmlRpcValue req, res, payload;
+    req[0] = subscriber;
+    req[1] = node;
+    if (!ros::master::execute("lookupNode", req, res, payload, false)) return false;
+    std::string host;
+    uint32_t port = 0;
+    if (!ros::network::splitURI(static_cast<std::string>(payload), host, port)) return false;
+    XmlRpc::XmlRpcClient client(host.c_str(), static_cast<int>(port), "/");
+    XmlRpc::XmlRpcValue args, info;
+    args[0] = subscriber;
+    const bool ok = client.execute("getBusInfo", args, info);
+    client.close();
+    if (!ok || info.getType() != XmlRpc::XmlRpcValue::TypeArray || info.size() < 3) return false;
+    XmlRpc::XmlRpcValue& links = info[2];
+    if (links.getType() != XmlRpc::XmlRpcValue::TypeArray) return false;
+    for (int i = 0; i < links.size(); ++i) {
+      XmlRpc::XmlRpcValue& l = links[i];
+      if (l.getType() != XmlRpc::XmlRpcValue::TypeArray || l.size() < 5) continue;
+      if (static_cast<std::string>(l[1]) == subscriber && static_cast<std::string>(l[2]) == "o" &&
+          static_cast<std::string>(l[4]) == topic) {
+        return true;
+      }
+    }
+    return false;
+  }
+
+  template <typename M>
+  ros::Publisher AdvertiseTracked(const std::string& topic, uint32_t queue_size, bool latch = false) {
+    const auto on_connect = [this](const ros::SingleSubscriberPublisher& p) {
+      std::lock_guard<std::mutex> lock(peers_mu_);
+      ++connected_[p.getTopic()][p.getSubscriberName()];
+    };
+    const auto on_disconnect = [this](const ros::SingleSubscriberPublisher& p) {
+      std::lock_guard<std::mutex> lock(peers_mu_);
+      --connected_[p.getTopic()][p.getSubscriberName()];
+    };
+    return nh_.advertise<M>(topic, queue_size, on_connect, on_disconnect, ros::VoidConstPtr(), latch);
   }
 
   // ---- time modes ----
@@ -396,7 +512,9 @@ class QuadSimNode {
     tf.transform.translation.y = p_world.y();
     tf.transform.translation.z = p_world.z();
     tf.transform.rotation = o.pose.pose.orientation;
-    tf_broadcaster_.sendTransform(tf);
+    tf2_msgs::TFMessage m;
+    m.transforms.push_back(tf);
+    tf_pub_.publish(m);
   }
 
   void PublishDepth(const ros::Time& now) {
@@ -441,7 +559,9 @@ class QuadSimNode {
     tf.transform.translation.y = config_.camera.p_body_camera_m.y();
     tf.transform.translation.z = config_.camera.p_body_camera_m.z();
     tf.transform.rotation = ToQuat(config_.camera.q_body_camera);
-    static_broadcaster_.sendTransform(tf);
+    tf2_msgs::TFMessage m;  // the simulator's only static transform
+    m.transforms.push_back(tf);
+    tf_static_pub_.publish(m);
   }
 
   void PublishStatus(bool force) {
@@ -485,7 +605,15 @@ class QuadSimNode {
   void PublishStatsIfDue() {
     const auto now = std::chrono::steady_clock::now();
     if (now - stats_wall_ < std::chrono::seconds(1)) return;
-    const double wall = std::chrono::duration<double>(now - stats_wall_).count();
+    PublishStats();
+    stats_wall_ = now;  // the next real-time factor is measured from here
+    stats_sim_s_ = static_cast<double>(total_steps_) * config_.physics_dt_s;
+  }
+
+  // SimStats stamped now (sim time); the real-time factor since the last periodic one.
+  void PublishStats() {
+    const auto now = std::chrono::steady_clock::now();
+    const double wall = std::max(1e-9, std::chrono::duration<double>(now - stats_wall_).count());
     const double sim_s = static_cast<double>(total_steps_) * config_.physics_dt_s;
     quad_msgs::SimStats m;
     m.header.stamp = Now();
@@ -501,8 +629,6 @@ class QuadSimNode {
     m.odometry_count = odometry_count_;
     m.depth_frame_count = depth_frame_count_;
     stats_pub_.publish(m);
-    stats_wall_ = now;
-    stats_sim_s_ = sim_s;
   }
 
   void PublishWorld() {
@@ -702,6 +828,7 @@ class QuadSimNode {
     collision_logged_ = false;
     PublishWorld();
     PublishStatus(true);
+    PublishStats();  // the counts at the episode's start (SimStats counts are for the whole run)
     res.success = true;
     res.episode_id = sim_.episode().episode_id;
     res.message = "episode " + std::to_string(res.episode_id) + " started with " +
@@ -724,8 +851,11 @@ class QuadSimNode {
       z_offset_pub_, stats_pub_;
   ros::Subscriber so3_sub_, trpy_sub_, ack_sub_;
   ros::ServiceServer reset_srv_;
-  tf2_ros::TransformBroadcaster tf_broadcaster_;
-  tf2_ros::StaticTransformBroadcaster static_broadcaster_;
+  ros::Publisher tf_pub_, tf_static_pub_;
+
+  // Connected subscribers of the tracked publishers: topic -> node -> number of links (peers_mu_).
+  std::mutex peers_mu_;
+  std::map<std::string, std::map<std::string, int>> connected_;
 
   // Shared with the subscriber/service threads (guarded by mu_).
   std::mutex mu_;

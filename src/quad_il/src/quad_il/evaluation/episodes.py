@@ -65,10 +65,21 @@ class EpisodeResult:
     counts: dict[str, int] = field(default_factory=dict)  # verdicts and skips (policy nodes)
     tracker_rejections: int = 0
     trajectory: list[list[float]] = field(default_factory=list)  # [t, x, y, z] at 10 Hz
+    # Lockstep waits of the simulator that ended by timeout during the episode (its SimStats: command and
+    # acknowledgement timeouts, from the episode's start up to its end). Any timeout means the flight may
+    # differ from another run of the same episode (not reproducible). None: unknown (a results file written
+    # before this field existed, or an episode whose reset failed).
+    lockstep_timeouts: int | None = None
 
     def __post_init__(self) -> None:
         if self.outcome not in OUTCOMES:
             raise ValueError(f"outcome must be one of {OUTCOMES}, got {self.outcome!r}")
+        if self.lockstep_timeouts is not None and (
+            isinstance(self.lockstep_timeouts, bool)
+            or not isinstance(self.lockstep_timeouts, int)
+            or self.lockstep_timeouts < 0
+        ):
+            raise ValueError(f"lockstep_timeouts must be None or an int >= 0, got {self.lockstep_timeouts!r}")
 
 
 def append_result(path: str | Path, result: EpisodeResult) -> None:

@@ -33,7 +33,7 @@ from quad_il.collection.episodes import EpisodeSpec
 from quad_il.evaluation.episodes import GROUND_Z_M, EpisodeResult, append_result, read_episodes
 from quad_il.evaluation.metrics import Box, clearance_lower_bound, path_length
 from quad_il.lockstep import ControllerGoal, FrameGate, Interrupted, OdometryHistory, TrackerGoto, wait_until
-from quad_msgs.msg import EpisodeStatus, PlanTiming, PolicyDecision
+from quad_msgs.msg import EpisodeStatus, PlanTiming, PolicyDecision, SimStats
 from quad_msgs.srv import ResetEpisode
 
 # Where each controller answers a goal ("goal accepted: ..." / "goal rejected: ...").
@@ -74,7 +74,12 @@ class EpisodeRunner:
         self._markers_seen = 0
         self._decisions: list[PolicyDecision] = []
         self._timings: list[PlanTiming] = []
+        # Per episode id: the simulator's whole-run lockstep timeout count in its first and newest SimStats
+        # (stamp, count) of that episode.
+        self._stats_first: dict[int, int] = {}
+        self._stats_last: dict[int, tuple[float, int]] = {}
         rospy.Subscriber("/sim/status", EpisodeStatus, self._on_status, queue_size=10)
+        rospy.Subscriber("/sim/stats", SimStats, self._on_stats, queue_size=200, tcp_nodelay=True)
         rospy.Subscriber("/sim/world_markers", MarkerArray, self._on_markers, queue_size=2)
         rospy.Subscriber("/policy/decision", PolicyDecision, self._on_decision, queue_size=200)
         rospy.Subscriber("/planner/timing", PlanTiming, self._on_timing, queue_size=200)
@@ -91,6 +96,13 @@ class EpisodeRunner:
     def _on_status(self, msg: EpisodeStatus) -> None:
         with self._cv:
             self._status = msg
+            self._cv.notify_all()
+
+    def _on_stats(self, msg: SimStats) -> None:
+        n = int(msg.lockstep_command_timeouts + msg.lockstep_ack_timeouts)
+        with self._cv:
+            self._stats_first.setdefault(msg.episode_id, n)
+            self._stats_last[msg.episode_id] = (msg.header.stamp.to_sec(), n)
             self._cv.notify_all()
 
     def _on_markers(self, msg: MarkerArray) -> None:
@@ -123,8 +135,24 @@ class EpisodeRunner:
     def _wait(self, predicate: Callable[[], bool], what: str, timeout_wall_s: float = WALL_WAIT_S) -> None:
         wait_until(self._cv, predicate, what, timeout_wall_s)
 
-    def _result(self, spec: EpisodeSpec, outcome: str, reason: str) -> EpisodeResult:
-        return EpisodeResult(self.controller, spec.index, spec.seed, outcome, reason)
+    def _result(
+        self, spec: EpisodeSpec, outcome: str, reason: str, lockstep_timeouts: int | None
+    ) -> EpisodeResult:
+        return EpisodeResult(
+            self.controller, spec.index, spec.seed, outcome, reason, lockstep_timeouts=lockstep_timeouts
+        )
+
+    def _lockstep_timeouts(self, episode_id: int, t: float, baseline: int) -> int:
+        """The simulator's lockstep timeouts from the episode's start (whole-run count `baseline` then) up to
+        sim time t. In lockstep the simulator publishes its SimStats before every depth frame, so the one
+        stamped at the frame held now is on its way; a free-running one publishes them every wall second."""
+        eps = 1e-6
+        self._wait(
+            lambda: episode_id in self._stats_last and self._stats_last[episode_id][0] >= t - eps,
+            f"simulator statistics (sim/stats) of episode {episode_id} at t={t:.3f}",
+        )
+        with self._lock:
+            return self._stats_last[episode_id][1] - baseline
 
     # ---- one episode ----
     def run(self, spec: EpisodeSpec, reset: bool = True) -> EpisodeResult:
@@ -146,12 +174,16 @@ class EpisodeRunner:
             resp = self.reset_srv(seed=spec.seed, world_file="", start=start, goal=Point(*spec.goal_world))
             self.frames.held = None  # the reset released the held frame
             if not resp.success:
-                return self._result(spec, "reset_failed", resp.message)
+                return self._result(spec, "reset_failed", resp.message, None)
             episode_id = resp.episode_id
             self._wait(
                 lambda: self._status is not None and self._status.episode_id == episode_id,
                 f"status of episode {episode_id}",
             )
+            # The simulator publishes its statistics at the reset: its timeouts before this episode.
+            self._wait(lambda: episode_id in self._stats_first, f"statistics of episode {episode_id}")
+            with self._lock:
+                baseline = self._stats_first[episode_id]
             # The simulator republishes its (latched) world markers at a reset: wait for this world's boxes.
             self._wait(lambda: self._markers_seen > markers_before, "world markers of the new episode")
         else:
@@ -159,6 +191,7 @@ class EpisodeRunner:
                 lambda: self._status is not None and self._markers_seen > 0,
                 "simulator status and world markers",
             )
+            baseline = 0  # the simulator has run this episode since its start: its counts are the episode's
         with self._lock:
             episode_id = self._status.episode_id
             t_episode = self._status.header.stamp.to_sec()
@@ -172,7 +205,12 @@ class EpisodeRunner:
                 break
             t, _ = self.frames.next_frame(t)
         else:
-            return self._result(spec, "takeoff_failed", f"goto refused: {why}")
+            return self._result(
+                spec,
+                "takeoff_failed",
+                f"goto refused: {why}",
+                self._lockstep_timeouts(episode_id, t, baseline),
+            )
         t_takeoff = t
         while True:
             t, _ = self.frames.next_frame(t)
@@ -184,6 +222,7 @@ class EpisodeRunner:
                     spec,
                     "takeoff_failed",
                     f"take-off to {[round(v, 2) for v in (sx, sy, sz)]} did not settle",
+                    self._lockstep_timeouts(episode_id, t, baseline),
                 )
             self.frames.ack()
         # The goal at this frame once the controller has decided it; the frame is released once the controller
@@ -192,7 +231,12 @@ class EpisodeRunner:
         t0 = t
         self.frames.ack()
         if answer.startswith("goal rejected"):
-            return self._result(spec, "reset_failed", f"the controller refused the episode's goal: {answer}")
+            return self._result(
+                spec,
+                "reset_failed",
+                f"the controller refused the episode's goal: {answer}",
+                self._lockstep_timeouts(episode_id, t, baseline),
+            )
         # Fly, one frame at a time, until the simulator reports the end or the sim-time limit.
         outcome, reason = "timeout", f"no goal within {self.episode_timeout_s:g} s"
         frames = [t0]
@@ -230,9 +274,13 @@ class EpisodeRunner:
                 )
             except TimeoutError:
                 rospy.logwarn(f"[eval] no policy decision of frame {last:.3f}: counted from those that came")
-        return self._finish(spec, outcome, reason, t0, t_end)
+        return self._finish(
+            spec, outcome, reason, t0, t_end, self._lockstep_timeouts(episode_id, t, baseline)
+        )
 
-    def _finish(self, spec: EpisodeSpec, outcome: str, reason: str, t0: float, t_end: float) -> EpisodeResult:
+    def _finish(
+        self, spec: EpisodeSpec, outcome: str, reason: str, t0: float, t_end: float, lockstep_timeouts: int
+    ) -> EpisodeResult:
         """The episode's result from what was recorded between the goal (t0) and the end (t_end), sim time."""
         eps = 1e-6
         self.odom.at(t_end)  # the path up to the end has arrived (odometry travels on its own topic)
@@ -241,7 +289,7 @@ class EpisodeRunner:
             decisions = [d for d in self._decisions if t0 - eps <= d.header.stamp.to_sec() <= t_end + eps]
             timings = [m for m in self._timings if t0 - eps <= m.header.stamp.to_sec() <= t_end + eps]
             boxes = list(self._boxes)
-        res = self._result(spec, outcome, reason)
+        res = self._result(spec, outcome, reason, lockstep_timeouts)
         if outcome == "goal_reached":
             res.time_to_goal_s = t_end - t0
         res.flight_time_s = t_end - t0
@@ -340,7 +388,7 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f"[eval {args.controller}] episode {spec.index} seed {spec.seed}: {res.outcome} ({res.reason}); "
             f"{res.flight_time_s:.1f} s sim, {time.monotonic() - wall0:.1f} s wall, "
-            f"{res.decisions} decisions",
+            f"{res.decisions} decisions, {res.lockstep_timeouts} lockstep timeouts",
             file=sys.stderr,
             flush=True,
         )
