@@ -25,6 +25,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src" / "quad_il" / "src"))
 
+from quad_il.learning.checkpoint import CheckpointError  # noqa: E402
 from quad_il.learning.config import ConfigError, load_config  # noqa: E402
 from quad_il.learning.dataset import DatasetError  # noqa: E402
 from quad_il.learning.plots import plot_run_comparison, read_metrics_csv  # noqa: E402
@@ -70,9 +71,10 @@ def main(argv: list[str] | None = None) -> int:
             if args.epochs is not None:
                 overrides.append(f"optim.epochs={args.epochs}")
             cfg = load_config([args.config, ROOT / "config" / "experiments" / f"{name}.yaml"], overrides)
-            resume = args.resume and (exp_dir / name / "checkpoints" / "last.pt").is_file()
+            # A run killed before its first checkpoint has only config.yaml: --resume starts it over.
+            resume = args.resume and (exp_dir / name / "config.yaml").is_file()
             results[name] = Trainer(cfg, resume=resume, argv=sys.argv if argv is None else argv).fit()
-    except (ConfigError, DatasetError, RunDirError, NonFiniteLossError) as e:
+    except (ConfigError, DatasetError, RunDirError, NonFiniteLossError, CheckpointError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     runs = {n: read_metrics_csv(exp_dir / n / "metrics.csv") for n in names}

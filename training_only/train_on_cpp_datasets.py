@@ -6,7 +6,7 @@
 
 DATASET: an .npz from cpp_dataset_postprocessing.py, a directory of them, or a shard directory (needs
 quad_il.data). The run directory is <run.out_dir>/<run.name> (docs/learning.md). Exit status 2 on a
-configuration, dataset or distributed-environment error, 3 on a non-finite loss.
+configuration, dataset, checkpoint or distributed-environment error, 3 on a non-finite loss.
 
 Distributed data parallel (docs/scaling.md): the same command under torchrun, e.g.
 
@@ -26,6 +26,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src" / "quad_il" / "src"))
 
+from quad_il.learning.checkpoint import CheckpointError  # noqa: E402
 from quad_il.learning.config import ConfigError, load_config  # noqa: E402
 from quad_il.learning.dataset import DatasetError  # noqa: E402
 from quad_il.learning.distributed import (  # noqa: E402
@@ -89,7 +90,7 @@ def main(argv: list[str] | None = None, environ: Mapping[str, str] | None = None
         # Rank 0 resolves (it alone reads the run directory) and every rank trains with its answer.
         cfg = ctx.run_on_main(resolve)  # type: ignore[assignment]
         result = Trainer(cfg, resume=args.resume, argv=sys.argv if argv is None else argv, dist=ctx).fit()
-    except (ConfigError, DatasetError, RunDirError, DistributedSetupError) as e:
+    except (ConfigError, DatasetError, RunDirError, DistributedSetupError, CheckpointError) as e:
         print(f"error{ctx.tag}: {e}", file=sys.stderr)
         return 2
     except NonFiniteLossError as e:

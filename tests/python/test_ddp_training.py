@@ -39,6 +39,7 @@ SCRIPT = ROOT / "training_only" / "train_on_cpp_datasets.py"
 if str(SRC) not in sys.path:
     sys.path.insert(0, str(SRC))
 
+from quad_il.learning.checkpoint import read_training_checkpoint  # noqa: E402
 from quad_il.learning.config import ConfigError, load_config  # noqa: E402
 from quad_il.learning.dataset import BatchLoader  # noqa: E402
 from quad_il.learning.distributed import (  # noqa: E402
@@ -293,8 +294,8 @@ def test_two_processes_train_as_one_within_tolerance(runs: dict[str, Path]) -> N
         for col in ("train_loss", "val_loss", "val_mse_world_m2"):
             assert float(b[col]) == pytest.approx(float(a[col]), rel=REL_TOL), (a["epoch"], col)
     assert float(one[-1]["val_loss"]) < float(one[0]["val_loss"])  # it did learn something
-    wa = torch.load(runs["one"] / "checkpoints" / "last.pt", weights_only=False)["model"]
-    wb = torch.load(runs["two"] / "checkpoints" / "last.pt", weights_only=False)["model"]
+    wa = read_training_checkpoint(runs["one"] / "checkpoints" / "last.pt")["model"]
+    wb = read_training_checkpoint(runs["two"] / "checkpoints" / "last.pt")["model"]
     for key, value in wa.items():
         if value.is_floating_point():
             torch.testing.assert_close(wb[key], value, rtol=1e-4, atol=1e-5, msg=key)
@@ -308,7 +309,7 @@ def test_logged_validation_loss_is_the_global_one(runs: dict[str, Path]) -> None
     run = runs["two"]
     cfg = load_config([run / "config.yaml"], [f"run.out_dir={str(runs['tmp'] / 'eval')!r}", "run.name=eval"])
     trainer = Trainer(cfg)
-    trainer.policy.load_state_dict(torch.load(run / "checkpoints" / "last.pt", weights_only=False)["model"])
+    trainer.policy.load_state_dict(read_training_checkpoint(run / "checkpoints" / "last.pt")["model"])
     val_loss, val_mse, val_cos = trainer._validate(4)
     last = _rows(run)[-1]
     assert float(last["val_loss"]) == pytest.approx(val_loss, rel=1e-6)

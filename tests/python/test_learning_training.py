@@ -13,6 +13,7 @@ import pytest
 import torch
 import yaml
 
+from quad_il.learning.checkpoint import read_training_checkpoint
 from quad_il.learning.config import ConfigError, ModelConfig, TrainConfig, load_config
 from quad_il.learning.export import load_exported
 from quad_il.learning.model import Policy
@@ -109,8 +110,8 @@ def test_two_runs_with_the_same_seed_give_identical_losses(dataset: Path, tmp_pa
     b = Trainer(tiny_config(dataset, tmp_path, "b", "optim.epochs=2", "data.num_workers=2")).fit()
     rows_a, rows_b = loss_rows(a.run_dir), loss_rows(b.run_dir)
     assert len(rows_a) == 2 and rows_a == rows_b
-    ckpt_a = torch.load(a.run_dir / "checkpoints" / "last.pt", weights_only=False)["model"]
-    ckpt_b = torch.load(b.run_dir / "checkpoints" / "last.pt", weights_only=False)["model"]
+    ckpt_a = read_training_checkpoint(a.run_dir / "checkpoints" / "last.pt")["model"]
+    ckpt_b = read_training_checkpoint(b.run_dir / "checkpoints" / "last.pt")["model"]
     assert all(torch.equal(ckpt_a[k], ckpt_b[k]) for k in ckpt_a)
     c = Trainer(tiny_config(dataset, tmp_path, "c", "optim.epochs=1", "run.seed=1")).fit()
     assert loss_rows(c.run_dir)[0] != rows_a[0]
@@ -159,7 +160,7 @@ def test_init_weights_starts_from_a_checkpoint_and_rejects_another_model(
 ) -> None:
     base = Trainer(tiny_config(dataset, tmp_path, "base", "optim.epochs=1")).fit()
     ckpt = base.run_dir / "checkpoints" / "last.pt"
-    trained = torch.load(ckpt, weights_only=False)["model"]
+    trained = read_training_checkpoint(ckpt)["model"]
     tuned = Trainer(
         tiny_config(dataset, tmp_path, "tuned", "optim.epochs=1", f"run.init_weights={str(ckpt)!r}")
     )

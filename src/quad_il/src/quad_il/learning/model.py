@@ -30,6 +30,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from quad_il.learning.checkpoint import read_checkpoint_file
 from quad_il.learning.config import ModelConfig
 from quad_il.learning.mobilenet_v3 import MobileNetV3
 from quad_il.learning.preprocessing import (
@@ -244,7 +245,8 @@ def build_policy(cfg: ModelConfig, num_ctrl_pts: int, horizon_s: float) -> Polic
     """A Policy, randomly initialised (global torch RNG: seed it first) or with torchvision's backbone."""
     policy = Policy(cfg, num_ctrl_pts, horizon_s)
     if cfg.backbone_weights:
-        state = torch.load(cfg.backbone_weights, map_location="cpu", weights_only=True)
+        # weights_only=True: a state dict of tensors, nothing else is built.
+        state = read_checkpoint_file(cfg.backbone_weights, "model.backbone_weights: file")
         if not isinstance(state, dict):
             raise ValueError(f"model.backbone_weights: {cfg.backbone_weights} does not hold a state dict")
         policy.net.backbone.load_torchvision_state_dict(state, load_classifier=cfg.backbone_out == 1000)

@@ -17,13 +17,13 @@ horizon; floating-point parameters and buffers (BatchNorm running statistics) ar
 from __future__ import annotations
 
 import argparse
-import pickle
 import sys
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from quad_il.learning.checkpoint import CheckpointError
 from quad_il.learning.config import ModelConfig
 from quad_il.learning.export import export_policy_file, seeded_check_inputs
 from quad_il.learning.model import Policy
@@ -53,11 +53,12 @@ def average_checkpoints(paths: list[str | Path], weights: list[float] | None = N
         if not Path(p).is_file():
             raise SoupError(f"no such checkpoint file {p}")
         try:
+            # Read with weights_only=True: a damaged, foreign or code-carrying file is a CheckpointError.
             loaded.append(load_policy_checkpoint(p))
-        except ValueError as e:
-            raise SoupError(str(e)) from None
-        except (RuntimeError, EOFError, pickle.UnpicklingError) as e:
-            raise SoupError(f"{p}: cannot read it as a training checkpoint ({e})") from None
+        except ValueError as e:  # CheckpointError (it names the file) or an invalid stored configuration
+            raise SoupError(str(e) if isinstance(e, CheckpointError) else f"{p}: {e}") from None
+        except RuntimeError as e:  # weights that do not fit the stored model settings
+            raise SoupError(f"{p}: cannot use it as a training checkpoint ({e})") from None
     first_policy, first = loaded[0]
     for p, (_, ckpt) in zip(paths[1:], loaded[1:], strict=True):
         for key in ("num_ctrl_pts", "horizon_s"):

@@ -8,13 +8,19 @@ Run directory `<run.out_dir>/<run.name>/`:
     tensorboard/           the same scalars for TensorBoard
     checkpoints/last.pt    everything needed to resume (model, optimiser, scheduler, RNG, epoch)
     checkpoints/best.pt    the epoch with the lowest validation loss
+                           (both: plain values and tensors only, written atomically, read with
+                           weights_only=True: checkpoint.py)
     policy.ts              TorchScript export of best.pt, with preprocessing (export.py)
     loss_curves.png        training/validation loss and learning rate per epoch
     summary.json           best epoch and losses, export check
 
 Determinism: the global torch RNG is seeded with run.seed before the network is built, the thread count is
 fixed, `torch.use_deterministic_algorithms` is on, and the batch order of epoch e is a function of (seed, e).
-Two runs with the same configuration and data give identical losses; a resumed run continues the same curve.
+Two runs with the same configuration and data give identical losses; a resumed run continues the same curve,
+and a run killed at any moment (SIGKILL, even while a checkpoint is written) and resumed with --resume ends
+with bit-identical weights (tests/python/test_training_kill_resume.py): it restarts from the last completed
+epoch's checkpoint (model, optimiser, scheduler, RNG states, epoch and step); the batch order needs no saved
+state. A run killed before its first checkpoint is started over by --resume.
 
 Distributed data parallel (`dist` a DistContext from distributed.init_distributed, world size > 1; see
 distributed.py and docs/scaling.md): every rank loads the data and builds the same seeded network; each
@@ -46,6 +52,13 @@ from torch import Tensor, nn
 from tqdm import tqdm
 
 from quad_il.learning import metrics
+from quad_il.learning.checkpoint import (
+    CHECKPOINT_FORMAT,
+    read_training_checkpoint,
+    rng_state,
+    save_checkpoint,
+    set_rng_state,
+)
 from quad_il.learning.config import (
     RESUME_MUTABLE_KEYS,
     ConfigError,
@@ -90,7 +103,6 @@ CSV_COLUMNS = [
     "val_cosine_world",
     "epoch_wall_s",
 ]
-CHECKPOINT_FORMAT = "quad_il.learning.checkpoint/1"
 PolicyFactory = Callable[[ModelConfig, int, float], Policy]
 
 
@@ -127,7 +139,10 @@ class TrainResult:
 
 
 def configure_determinism(seed: int, num_threads: int, deterministic: bool) -> None:
+    # Training draws only from torch's global generator and from generators seeded with (run.seed, epoch);
+    # Python's and numpy's global ones are seeded too (and checkpointed) for any library that uses them.
     random.seed(seed)
+    np.random.seed(seed % 2**32)  # noqa: NPY002
     torch.manual_seed(seed)
     torch.set_num_threads(num_threads)
     torch.use_deterministic_algorithms(deterministic)
@@ -135,12 +150,6 @@ def configure_determinism(seed: int, num_threads: int, deterministic: bool) -> N
 
 def run_dir_of(cfg: TrainConfig) -> Path:
     return Path(cfg.run.out_dir) / cfg.run.name
-
-
-def _atomic_torch_save(obj: Any, path: Path) -> None:
-    tmp = path.with_name(path.name + ".partial")
-    torch.save(obj, tmp)
-    tmp.replace(path)
 
 
 def _read_csv(path: Path) -> list[dict[str, str]]:
@@ -224,8 +233,10 @@ class Trainer:
         per_process_batch = cfg.optim.batch_size
         if dist.enabled:
             per_process_batch = check_batch_division(cfg.optim.batch_size, dist.world_size)
+        # Resuming a run killed before its first checkpoint starts it over (its config.yaml is checked).
+        self._has_checkpoint = False
         if resume:
-            cfg = dist.run_on_main(lambda: self._check_resumable(cfg))
+            cfg, self._has_checkpoint = dist.run_on_main(lambda: self._check_resumable(cfg))
         else:
             dist.run_on_main(self._check_new_run_dir)
         self.cfg = cfg
@@ -247,7 +258,7 @@ class Trainer:
         self.data = data if data is not None else load_dataset(cfg.data.paths, pre, shards)
         torch.manual_seed(cfg.run.seed)
         self.policy = policy_factory(cfg.model, self.data.num_ctrl_pts, self.data.horizon_s)
-        if cfg.run.init_weights and not resume:
+        if cfg.run.init_weights and not self._has_checkpoint:
             load_initial_weights(self.policy, cfg.run.init_weights, cfg.model)
         if cfg.optim.channels_last:
             self.policy = self.policy.to(memory_format=torch.channels_last)
@@ -374,11 +385,11 @@ class Trainer:
                 f"run directory {self.run_dir} already holds a run: resume it or choose run.name"
             )
 
-    def _check_resumable(self, cfg: TrainConfig) -> TrainConfig:
+    def _check_resumable(self, cfg: TrainConfig) -> tuple[TrainConfig, bool]:
         ckpt = self.run_dir / "checkpoints" / "last.pt"
         saved_cfg_path = self.run_dir / "config.yaml"
-        if not ckpt.is_file() or not saved_cfg_path.is_file():
-            raise RunDirError(f"nothing to resume in {self.run_dir} (no checkpoints/last.pt or config.yaml)")
+        if not saved_cfg_path.is_file():
+            raise RunDirError(f"nothing to resume in {self.run_dir} (no config.yaml)")
         saved = load_config([saved_cfg_path])
         changed = {k: v for k, v in config_differences(saved, cfg).items() if k not in RESUME_MUTABLE_KEYS}
         if changed:
@@ -387,7 +398,7 @@ class Trainer:
                 f"cannot resume {self.run_dir} with a different configuration ({detail}); only "
                 f"{sorted(RESUME_MUTABLE_KEYS)} may change"
             )
-        return cfg
+        return cfg, ckpt.is_file()
 
     def _write_run_files(self) -> None:
         self.run_dir.mkdir(parents=True, exist_ok=True)
@@ -423,7 +434,7 @@ class Trainer:
             "scheduler": self.scheduler.state_dict() if self.scheduler is not None else None,
             "best_val_loss": self.best_val_loss,
             "best_epoch": self.best_epoch,
-            "torch_rng_state": torch.get_rng_state(),
+            "rng": rng_state(),
             "config": self.cfg.to_dict(),
             "num_ctrl_pts": self.data.num_ctrl_pts,
             "horizon_s": self.data.horizon_s,
@@ -431,11 +442,7 @@ class Trainer:
         }
 
     def _load_last(self) -> tuple[dict[str, Any], list[dict[str, str]]]:
-        ckpt = torch.load(self.run_dir / "checkpoints" / "last.pt", map_location="cpu", weights_only=False)
-        if ckpt.get("format") != CHECKPOINT_FORMAT:
-            raise RunDirError(
-                f"{self.run_dir}: checkpoint format {ckpt.get('format')!r} is not {CHECKPOINT_FORMAT}"
-            )
+        ckpt = read_training_checkpoint(self.run_dir / "checkpoints" / "last.pt", "resume: checkpoint")
         # Rows written after the checkpoint (a crash between the two writes) are redone identically.
         rows = [r for r in _read_csv(self.run_dir / "metrics.csv") if int(r["epoch"]) <= int(ckpt["epoch"])]
         return ckpt, rows
@@ -448,7 +455,10 @@ class Trainer:
         if self.scheduler is not None:
             self.scheduler.load_state_dict(ckpt["scheduler"])
         if not self.dist.enabled:
-            torch.set_rng_state(ckpt["torch_rng_state"])
+            if "rng" in ckpt:
+                set_rng_state(ckpt["rng"])
+            else:  # format /1
+                torch.set_rng_state(ckpt["torch_rng_state"])
         # (Under DDP each rank's RNG is reseeded per epoch from (seed, epoch, rank): nothing to restore.)
         saved_world = int(ckpt.get("world_size", 1))
         if saved_world != self.dist.world_size and self.dist.is_main:
@@ -660,7 +670,7 @@ class Trainer:
         return loss_sum / n, mse_sum / n, cos_sum / n
 
     def fit(self) -> TrainResult:
-        if self.resume:
+        if self._has_checkpoint:
             self._restore()
         main = self.dist.is_main
         if main:
@@ -723,9 +733,11 @@ class Trainer:
                     writer.add_scalar("epoch/epoch", epoch, self.global_step)
                     writer.flush()
                 ckpt = self._checkpoint(epoch)
-                _atomic_torch_save(ckpt, self.run_dir / "checkpoints" / "last.pt")
+                # best.pt before last.pt: a kill between the two leaves last.pt at the previous epoch, which
+                # then redoes this one and rewrites best.pt identically.
                 if improved:
-                    _atomic_torch_save(ckpt, self.run_dir / "checkpoints" / "best.pt")
+                    save_checkpoint(ckpt, self.run_dir / "checkpoints" / "best.pt")
+                save_checkpoint(ckpt, self.run_dir / "checkpoints" / "last.pt")
                 log(
                     f"[train] epoch {epoch}/{epochs}: train {train_loss:.5g}, val {val_loss:.5g}, "
                     f"val MSE world {val_mse:.4g} m^2, cos {val_cos:.4f}, lr {lr:.3g}, "
@@ -759,7 +771,7 @@ class Trainer:
             summary["last"] = self.history[-1].row()
         best = self.run_dir / "checkpoints" / "best.pt"
         if self.cfg.log.export_torchscript and best.is_file():
-            ckpt = torch.load(best, map_location="cpu", weights_only=False)
+            ckpt = read_training_checkpoint(best, "best checkpoint")
             self.policy.load_state_dict(ckpt["model"])
             policy = self.policy.to(memory_format=torch.contiguous_format)
             idx = torch.from_numpy(self.split.val_idx[:8])
@@ -826,9 +838,7 @@ def load_initial_weights(policy: Policy, path: str | Path, model_cfg: ModelConfi
     p = Path(path)
     if not p.is_file():
         raise FileNotFoundError(f"run.init_weights: no such checkpoint file {p}")
-    ckpt = torch.load(p, map_location="cpu", weights_only=False)
-    if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
-        raise ValueError(f"run.init_weights: {p} is not a quad_il training checkpoint")
+    ckpt = read_training_checkpoint(p, "run.init_weights: checkpoint")
     if model_cfg is not None:
         stored = ModelConfig.model_validate(ckpt["config"]["model"])
         differ = [
@@ -854,10 +864,11 @@ def load_initial_weights(policy: Policy, path: str | Path, model_cfg: ModelConfi
 
 
 def load_policy_checkpoint(path: str | Path) -> tuple[Policy, dict[str, Any]]:
-    """A Policy (eval mode) rebuilt from a checkpoint's stored configuration and weights."""
-    ckpt = torch.load(path, map_location="cpu", weights_only=False)
-    if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
-        raise ValueError(f"{path}: not a quad_il training checkpoint")
+    """A Policy (eval mode) rebuilt from a checkpoint's stored configuration and weights.
+
+    Raises checkpoint.CheckpointError (a ValueError) naming the file when it is not a readable, safe
+    training checkpoint."""
+    ckpt = read_training_checkpoint(path, "checkpoint")
     cfg = TrainConfig.model_validate(ckpt["config"])
     policy = Policy(cfg.model, int(ckpt["num_ctrl_pts"]), float(ckpt["horizon_s"]))
     policy.load_state_dict(ckpt["model"])
