@@ -123,7 +123,7 @@ def fake_flights(monkeypatch: pytest.MonkeyPatch) -> list[tuple[str, int]]:
             if spec.index not in done:
                 append_result(
                     out / f"{controller}.jsonl",
-                    EpisodeResult(controller, spec.index, spec.seed, "goal_reached", ""),
+                    EpisodeResult(controller, spec.index, spec.seed, "goal_reached", "", lockstep_timeouts=0),
                 )
                 flown.append((controller, spec.index))
         return ""
@@ -161,6 +161,7 @@ def test_a_run_records_its_pin_and_the_report_prints_it(
     assert "tier **`bare`**" in report
     assert "| policy, C++ (LibTorch) | bare | 2 | 100 % [34-100] | 0 % [0-66] | 0 % [0-66] |" in report
     assert "| expert (fast_planner) | - | 2 | 100 % [34-100] |" in report
+    assert report.count("| 0 % | yes |") == 2  # no lockstep timeout: reproducible
     out_lines = capsys.readouterr().out.splitlines()
     assert "BENCH eval_cpp_bare_success_rate 1.0000 ratio" in out_lines
     assert "BENCH eval_expert_success_rate 1.0000 ratio" in out_lines
