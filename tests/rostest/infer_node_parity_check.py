@@ -5,7 +5,9 @@ policy_node.py, namespace /py) are fed the same recorded inputs as ROS messages 
 (control points within 1e-4), acknowledge every frame, and skip the same frames for the same reasons (no goal
 yet, a depth frame of the wrong encoding). No simulator and no tracker: the nodes only publish
 (~send_to_tracker false), at a replanning rate of half the frame rate. The policy is a seeded random-init
-export with local state and output frames."""
+export with local state and output frames. Every wait ends on its condition (connections, the goal's answer,
+each frame's acknowledgement; the nodes wait for each frame's odometry, ~odom_wait_s); the wall-time limits
+are failure guards only."""
 
 from __future__ import annotations
 
@@ -26,6 +28,7 @@ import yaml
 from geometry_msgs.msg import PoseStamped, TransformStamped
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import CameraInfo, Image
+from std_msgs.msg import String
 
 from quad_il.inference.random_policy import export_random_policy
 from quad_il.learning.config import ModelConfig
@@ -33,6 +36,7 @@ from quad_il.learning.synthetic import make_synthetic_arrays
 from quad_msgs.msg import Bspline, FrameAck, PolicyDecision
 
 NAMESPACES = ("cpp", "py")
+GUARD_S = 60.0  # wall-time failure guard of every wait
 H, W = 60, 80
 K = np.array([387.2 * W / 640, 0, (W - 1) / 2, 0, 387.2 * H / 480, (H - 1) / 2, 0, 0, 1])
 
@@ -57,9 +61,15 @@ class NodeOutputs:
         self.decisions: dict[float, PolicyDecision] = {}
         self.bsplines: dict[int, Bspline] = {}
         self.acks: dict[float, FrameAck] = {}
+        self.status: list[str] = []
+        rospy.Subscriber(f"/{ns}/policy/status", String, self._on_status, queue_size=10)
         rospy.Subscriber(f"/{ns}/policy/decision", PolicyDecision, self._on_decision, queue_size=100)
         rospy.Subscriber(f"/{ns}/planner/bspline", Bspline, self._on_bspline, queue_size=100)
         rospy.Subscriber(f"/{ns}/sim/frame_ack", FrameAck, self._on_ack, queue_size=100)
+
+    def _on_status(self, m: String) -> None:
+        with self.lock:
+            self.status.append(m.data)
 
     def _on_decision(self, m: PolicyDecision) -> None:
         with self.lock:
@@ -108,7 +118,7 @@ class InferNodeParity(unittest.TestCase):
                 f"/{ns}/camera/depth/camera_info", CameraInfo, queue_size=1, latch=True
             )
             pubs[ns]["goal"] = rospy.Publisher(f"/{ns}/planner/goal", PoseStamped, queue_size=1, latch=True)
-        tf = tf2_ros.StaticTransformBroadcaster()
+        tf = self.tf = tf2_ros.StaticTransformBroadcaster()
         t = TransformStamped()
         t.header.frame_id, t.child_frame_id = "base_link", "camera"
         t.transform.translation.x = 0.1
@@ -125,6 +135,9 @@ class InferNodeParity(unittest.TestCase):
             rospy.set_param(f"/{ns}/policy_node/config", str(config_path))
             rospy.set_param(f"/{ns}/policy_node/policy_file", str(policy))
             rospy.set_param(f"/{ns}/policy_node/send_to_tracker", False)
+            # A frame waits for its own odometry (published just before it, on another topic) as long as it
+            # takes: the guard only.
+            rospy.set_param(f"/{ns}/policy_node/odom_wait_s", GUARD_S)
             procs.append(
                 launch.launch(
                     roslaunch.core.Node(pkg, node_type, name="policy_node", namespace=ns, output="log")
@@ -139,36 +152,39 @@ class InferNodeParity(unittest.TestCase):
                 p.stop()
             launch.stop()
 
+    def _wait_until(self, predicate, what: str) -> None:
+        deadline = time.monotonic() + GUARD_S
+        while not predicate():
+            if time.monotonic() > deadline:
+                self.fail(f"no {what} within {GUARD_S:g} s")
+            time.sleep(0.01)
+
     def _wait_connected(self, pubs) -> None:
-        deadline = time.monotonic() + 60.0
-        while time.monotonic() < deadline:
-            if all(
-                p["depth"].get_num_connections() > 0 and p["odom"].get_num_connections() > 0
+        # Both nodes subscribe to every input, including the camera's (latched) static transform, which
+        # rospy writes to a subscriber as soon as it connects.
+        self._wait_until(
+            lambda: all(
+                p[name].get_num_connections() > 0
                 for p in pubs.values()
-            ):
-                # A message published while a fresh connection's handshake is still settling can be lost.
-                time.sleep(1.0)
-                return
-            time.sleep(0.05)
-        self.fail("the policy nodes did not subscribe within 60 s")
+                for name in ("depth", "odom", "info", "goal")
+            )
+            and self.tf.pub_tf.get_num_connections() >= len(pubs),
+            "subscriptions of both policy nodes",
+        )
 
     def _send_frame(
         self, outputs, pubs, depth: np.ndarray, stamp: float, odom: Odometry | None, encoding: str = "32FC1"
     ) -> None:
         s = exact_time(stamp)
+        # The nodes pair the frame with the newest odometry <= its stamp, waiting for it if it comes later.
         for ns in NAMESPACES:
             if odom is not None:
                 pubs[ns]["odom"].publish(odom)
-        time.sleep(0.05)  # the odometry is in before the frame (the nodes pair the newest odometry <= frame)
         for ns in NAMESPACES:
             pubs[ns]["depth"].publish(depth_message(depth, s, encoding))
-        deadline = time.monotonic() + 30.0
-        while time.monotonic() < deadline:
-            if all(stamp in o.acks and stamp in o.decisions for o in outputs.values()):
-                return
-            time.sleep(0.01)
-        self.fail(
-            f"frame {stamp}: no decision/ack from {[n for n, o in outputs.items() if stamp not in o.acks]}"
+        self._wait_until(
+            lambda: all(stamp in o.acks and stamp in o.decisions for o in outputs.values()),
+            f"decision and acknowledgement of frame {stamp} from both nodes",
         )
 
     def _feed_and_compare(self, outputs, pubs) -> None:
@@ -205,7 +221,10 @@ class InferNodeParity(unittest.TestCase):
         goal.pose.orientation.w = 1.0
         for ns in NAMESPACES:
             pubs[ns]["goal"].publish(goal)
-        time.sleep(0.5)
+        self._wait_until(
+            lambda: all(any(s.startswith("goal accepted") for s in o.status) for o in outputs.values()),
+            "goal answer from both nodes",
+        )
         stamps = [1.0]
         for i in range(len(depth)):
             stamp = round(2.0 + 0.1 * i, 6)
@@ -214,7 +233,16 @@ class InferNodeParity(unittest.TestCase):
         # A frame of the wrong encoding: skipped by both, still acknowledged.
         self._send_frame(outputs, pubs, depth[0], 9.0, None, encoding="16UC1")
         stamps.append(9.0)
-        time.sleep(0.5)  # the last B-splines in flight
+
+        # Each decision's B-spline travels on its own topic: wait for all of them.
+        def all_bsplines() -> bool:
+            for o in outputs.values():
+                with o.lock:
+                    if any(d.traj_id and d.traj_id not in o.bsplines for d in o.decisions.values()):
+                        return False
+            return True
+
+        self._wait_until(all_bsplines, "B-splines of all decisions")
 
         cpp, py = outputs["cpp"], outputs["py"]
         statuses = []

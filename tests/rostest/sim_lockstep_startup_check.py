@@ -3,27 +3,29 @@
 
 The node publishes commands and acknowledges depth frames from the start (so quad_sim's peer check passes
 together with the early odometry listener of the launch file), waits until the simulator has published its
-first odometry (its /clock reached that stamp) and only then subscribes to odometry. ROS drops messages
-published before a subscriber connects, so without the simulator's resend the first odometry would never
-arrive and the simulator would stall for lockstep.timeout_s (10 s in sim_lockstep.yaml).
+first odometry (the base_link transform the simulator broadcasts right after it has that stamp) and only then
+subscribes to odometry. ROS drops messages published before a subscriber connects, so without the simulator's
+resend the first odometry would never arrive: the simulator would stall for lockstep.timeout_s (10 s in
+sim_lockstep.yaml), count a command timeout and step on, and the first odometry received would be the second.
+Every wait ends on its condition; the wall-time limits are failure guards only.
 """
 
 import threading
-import time
 import unittest
 
 import rospy
 import rostest
 from nav_msgs.msg import Odometry
-from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Image
+from tf2_msgs.msg import TFMessage
 
-from quad_msgs.msg import FrameAck, SO3Command
+from quad_msgs.msg import FrameAck, SimStats, SO3Command
 
 FIRST_STAMP_NS = 1_005_000_000  # quad_sim's time base (1 s) plus one odometry period at 200 Hz
 ODOM_WANTED = 100  # 0.5 s of sim time
 MASS_KG = 0.75
 GRAVITY = 9.81
+GUARD_S = 60.0  # wall-time failure guard of every wait
 
 
 class LateSubscriberTest(unittest.TestCase):
@@ -33,7 +35,9 @@ class LateSubscriberTest(unittest.TestCase):
         stamps: list[int] = []
         first_rx = threading.Event()
         enough = threading.Event()
-        clock_seen = threading.Event()
+        first_out = threading.Event()
+        stats: list[SimStats] = []
+        stats_cv = threading.Condition(lock)
         cmd_pub = rospy.Publisher("so3_cmd", SO3Command, queue_size=10, tcp_nodelay=True)
         ack_pub = rospy.Publisher("sim/frame_ack", FrameAck, queue_size=10, tcp_nodelay=True)
 
@@ -41,9 +45,19 @@ class LateSubscriberTest(unittest.TestCase):
             ack = FrameAck(consumer="test_consumer", frame_seq=msg.header.seq, stamp=msg.header.stamp)
             ack_pub.publish(ack)
 
-        def on_clock(msg: Clock) -> None:
-            if msg.clock.to_nsec() >= FIRST_STAMP_NS:
-                clock_seen.set()
+        def on_tf(msg: TFMessage) -> None:
+            # The simulator broadcasts the vehicle's transform right after publishing the odometry of the
+            # same stamp.
+            if any(
+                t.child_frame_id == "base_link" and t.header.stamp.to_nsec() >= FIRST_STAMP_NS
+                for t in msg.transforms
+            ):
+                first_out.set()
+
+        def on_stats(msg: SimStats) -> None:
+            with stats_cv:
+                stats.append(msg)
+                stats_cv.notify_all()
 
         def on_odom(msg: Odometry) -> None:
             with lock:
@@ -60,19 +74,25 @@ class LateSubscriberTest(unittest.TestCase):
             cmd_pub.publish(cmd)
 
         rospy.Subscriber("camera/depth/image", Image, on_depth, tcp_nodelay=True, queue_size=10)
-        rospy.Subscriber("/clock", Clock, on_clock, queue_size=10)
-        self.assertTrue(clock_seen.wait(60.0), "quad_sim never reached its first odometry stamp")
-        time.sleep(1.0)  # the first odometry is out and unanswered: the simulator waits on it
-        subscribed = time.monotonic()
+        rospy.Subscriber("/tf", TFMessage, on_tf, queue_size=100)
+        rospy.Subscriber("sim/stats", SimStats, on_stats, queue_size=10)
+        self.assertTrue(first_out.wait(GUARD_S), "quad_sim never published its first odometry")
+        # The first odometry is out and unanswered (nobody sends its command yet): the simulator waits on it.
         rospy.Subscriber("odom", Odometry, on_odom, tcp_nodelay=True, queue_size=100)
-        self.assertTrue(first_rx.wait(8.0), "no odometry within 8 s of subscribing")
-        first_delay = time.monotonic() - subscribed
-        self.assertTrue(enough.wait(20.0), f"fewer than {ODOM_WANTED} odometry messages")
+        self.assertTrue(first_rx.wait(GUARD_S), "no odometry after subscribing")
+        self.assertTrue(enough.wait(GUARD_S), f"fewer than {ODOM_WANTED} odometry messages")
         with lock:
             got = list(stamps)
-        # The first odometry arrives (sent again), well before the 10 s lockstep timeout would release it.
+        # The first odometry arrives (sent again), not released by the lockstep timeout: the first stamp
+        # received is the first one, and the simulator counted no command timeout up to the stamps received.
         self.assertEqual(got[0], FIRST_STAMP_NS, f"first odometry stamped {got[0] * 1e-9:.3f} s, not 1.005 s")
-        self.assertLess(first_delay, 5.0)
+        with stats_cv:
+            self.assertTrue(
+                stats_cv.wait_for(lambda: any(m.header.stamp.to_nsec() >= got[-1] for m in stats), GUARD_S),
+                "no /sim/stats after the odometry received",
+            )
+            last = next(m for m in stats if m.header.stamp.to_nsec() >= got[-1])
+        self.assertEqual(last.lockstep_command_timeouts, 0, "the first odometry was released by a timeout")
         # Then the ordinary lockstep stream: every later stamp one period after the one before, none skipped
         # (resends of the first stamp before our first answer got through may repeat it).
         later = [s for s in got if s != FIRST_STAMP_NS]

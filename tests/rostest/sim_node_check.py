@@ -1,5 +1,7 @@
 #!/usr/bin/env python3
-"""rostest node for quad_sim_node: topics and rates, latched data, set_z_offset, bad input, reset."""
+"""rostest node for quad_sim_node: topics and rates, latched data, set_z_offset, bad input, reset.
+
+Every wait ends on its condition (a message, a sim-time stamp); the wall-time limits are failure guards."""
 
 import math
 import threading
@@ -22,7 +24,7 @@ from quad_msgs.srv import ResetEpisode, ResetEpisodeRequest
 
 
 def wait_until(pred, timeout_s: float, what: str) -> None:
-    """Waits on wall-clock time for a condition (sim time runs at the simulator's pace)."""
+    """Polls a condition; timeout_s (wall time) is a failure guard (sim time runs at the simulator's pace)."""
     deadline = time.monotonic() + timeout_s
     while not pred():
         if time.monotonic() > deadline:
@@ -141,22 +143,35 @@ class SimNodeTest(unittest.TestCase):
         cmd.force.z = math.nan
         cmd.orientation.w = 1.0
         cmd.aux.enable_motors = True
-        for _ in range(5):
-            self.cmd_pub.publish(cmd)
-            time.sleep(0.05)
 
         def logged():
             return any("rejected SO3Command" in m.msg and "NaN/Inf" in m.msg for m in self.snapshot("logs"))
 
-        wait_until(logged, 30, "the rejection log line")
+        def sent_and_logged():
+            # Sent again at each poll until the rejection is logged: a message published while the
+            # connection is still being set up can be lost.
+            if logged():
+                return True
+            self.cmd_pub.publish(cmd)
+            return False
+
+        wait_until(sent_and_logged, 30, "the rejection log line")
 
         def counted():
-            return "stats" in self.latched and self.latched["stats"].rejected_commands >= 1
+            with self.lock:
+                return "stats" in self.latched and self.latched["stats"].rejected_commands >= 1
 
         wait_until(counted, 30, "the rejection in /sim/stats")
-        time.sleep(0.5)
-        # Still resting on the ground, motionless: the NaN never reached the vehicle (the bit-exact "state
-        # untouched" check is the gtest Commands.NanOrInfCommandIsRejectedAndLeavesStateUntouched).
+        # Half a second of sim time after the rejection was counted, the vehicle is still resting on the
+        # ground, motionless: the NaN never reached it (the bit-exact "state untouched" check is the gtest
+        # Commands.NanOrInfCommandIsRejectedAndLeavesStateUntouched).
+        with self.lock:
+            after_ns = self.latched["stats"].header.stamp.to_nsec() + 500_000_000
+        wait_until(
+            lambda: self.snapshot("odom")[-1].header.stamp.to_nsec() >= after_ns,
+            30,
+            "odometry 0.5 s of sim time after the rejection",
+        )
         odom = self.snapshot("odom")[-1]
         self.assertAlmostEqual(odom.pose.pose.position.z, 0.125, delta=1e-3)
         v = odom.twist.twist.linear

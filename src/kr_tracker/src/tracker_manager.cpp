@@ -35,8 +35,10 @@ Tracker* TrackerManager::Find(const std::string& name) {
 ControlStep TrackerManager::OnOdometry(const VehicleState& state) {
   ControlStep step;
   if (!state.AllFinite()) {
+    // Hold: the hover command at the last good reference's yaw, and that reference's pose held (zero
+    // derivatives: a reference still moving would not be what the hover command does; issue 30).
     step.command = safe_command_;
-    step.ref = last_ref_;
+    step.ref = PositionReference::Hold(last_ref_.p_world, last_ref_.yaw_rad);
     step.status = ControlStatus::kNonFiniteInput;
     step.odometry_skipped = true;
     return step;

@@ -371,6 +371,12 @@ TEST(TrackerManager, StatusBookkeeping) {
   const ControlStep bad = m.OnOdometry(Odom(std::nan(""), Eigen::Vector3d(0, 0, 0)));
   EXPECT_TRUE(bad.odometry_skipped);
   EXPECT_EQ(bad.status, ControlStatus::kNonFiniteInput);
+  // The hold: the hover command at the last reference's yaw, that reference's position held still.
+  EXPECT_EQ(bad.command.force_world_N, Eigen::Vector3d(0.0, 0.0, kMass * kG));
+  EXPECT_TRUE(bad.ref.p_world.isApprox(s.ref.p_world));
+  EXPECT_EQ(bad.ref.yaw_rad, s.ref.yaw_rad);
+  EXPECT_TRUE(bad.ref.v_world.isZero());
+  EXPECT_TRUE(bad.ref.a_world.isZero());
   EXPECT_EQ(m.reanchor_count(), 1);
 }
 

@@ -92,7 +92,10 @@ TorchPolicy::TorchPolicy(const std::string& path) : impl_(std::make_unique<Impl>
   try {
     impl_->module = torch::jit::load(path, torch::kCPU, extra);
   } catch (const c10::Error& e) {
+    // Truncated, not a TorchScript archive at all (a text file, a zip of something else), or unreadable.
     throw std::runtime_error(path + ": cannot load the TorchScript policy: " + e.what_without_backtrace());
+  } catch (const std::exception& e) {
+    throw std::runtime_error(path + ": cannot load the TorchScript policy: " + e.what());
   }
   impl_->json = extra[kPolicyMetaFile];
   if (impl_->json.empty()) {
@@ -127,8 +130,13 @@ TorchPolicy::TorchPolicy(const std::string& path) : impl_(std::make_unique<Impl>
       throw PolicyFormatError(path + ": attribute mean_first = " + (file_mean_first ? "true" : "false") +
                               " disagrees with the metadata's output.hypotheses_first");
     }
+  } catch (const PolicyFormatError&) {
+    throw;
   } catch (const c10::Error& e) {
     throw PolicyFormatError(path + ": missing policy attribute: " + e.what_without_backtrace());
+  } catch (const std::exception& e) {
+    // A module without the attribute (torch::jit::ObjectAttributeError is no c10::Error).
+    throw PolicyFormatError(path + ": missing policy attribute: " + e.what());
   }
   impl_->has_forward_net = impl_->module.find_method("forward_net").has_value();
   if (!impl_->has_forward_net && !impl_->module.find_method("forward_prepared").has_value()) {

@@ -168,7 +168,8 @@ class TrackerNode {
                (now - last_odom_rx_).toSec(), config_.odom_timeout_s);
     }
     stale_ = true;
-    Publish(manager_.safe_command(), manager_.last_ref(), now);
+    const PositionReference& last = manager_.last_ref();
+    Publish(manager_.safe_command(), PositionReference::Hold(last.p_world, last.yaw_rad), now);
   }
 
   void Publish(const So3Command& c, const PositionReference& ref, const ros::Time& stamp) {

@@ -28,6 +28,7 @@
 #include <quad_common/wait_connected.h>
 #include <quad_policy/abi.h>
 #include <quad_policy/config.h>
+#include <quad_policy/input_checks.h>
 #include <quad_policy/policy_decider.h>
 #include <quad_policy/torch_policy.h>
 
@@ -74,6 +75,10 @@ class PolicyNode {
     if (pnh_.getParam("send_to_tracker", send)) cfg_.send_to_tracker = send;
     tracker_accept_timeout_s_ = pnh_.param<double>("tracker_accept_timeout_s", 1.0);
     odom_period_s_ = pnh_.param<double>("odom_period_s", 0.005);
+    odom_wait_s_ = pnh_.param<double>("odom_wait_s", 0.2);
+    if (!(std::isfinite(odom_wait_s_) && odom_wait_s_ > 0.0))
+      throw std::runtime_error("~odom_wait_s must be a finite number > 0, got " +
+                               std::to_string(odom_wait_s_));
     if (cfg_.policy_file.empty())
       throw std::runtime_error("no policy file: set policy_file in the config or ~policy_file");
 
@@ -92,7 +97,13 @@ class PolicyNode {
         policy->has_forward_net() ? "forward_net" : "forward_prepared", quad_policy::TorchThreads(),
         ToString(cfg_.refusal.action), cfg_.recovery.goal_yaw_offsets_deg.size(),
         cfg_.recovery.steer_clearance_m, cfg_.recovery.final_approach_m);
-    WarmUp(*policy);
+    try {
+      WarmUp(*policy);
+    } catch (const std::exception& e) {
+      // A file whose methods exist but do not take a policy's inputs (issue 30): name the file.
+      throw std::runtime_error(cfg_.policy_file +
+                               ": the policy's forward pass fails on a test input: " + e.what());
+    }
 
     const ros::TransportHints hints = ros::TransportHints().tcpNoDelay();
     odom_sub_ = nh_.subscribe("odom", 50, &PolicyNode::OnOdom, this, hints);
@@ -249,15 +260,16 @@ class PolicyNode {
     Count(status);
   }
 
+  void Refuse(const std::string& reason, quad_msgs::PolicyDecision* out) {
+    ROS_WARN_THROTTLE(2.0, "policy_node: frame refused: %s", reason.c_str());
+    Skip("bad_input", reason, out);
+  }
+
   void Handle(const sensor_msgs::Image& img, quad_msgs::PolicyDecision* out) {
     const double stamp = img.header.stamp.toSec();
-    if (img.encoding != "32FC1" || img.is_bigendian || img.step < img.width * 4 || img.step % 4 != 0 ||
-        img.data.size() < static_cast<std::size_t>(img.step) * img.height || img.width == 0 ||
-        img.height == 0) {
-      ROS_WARN_THROTTLE(5.0, "policy_node: depth frame skipped: encoding %s, %ux%u, step %u (need 32FC1)",
-                        img.encoding.c_str(), img.width, img.height, img.step);
-      return Skip("bad_input", "depth frame is not a little-endian 32FC1 image", out);
-    }
+    const std::string layout = quad_policy::DepthLayoutProblem(
+        {img.encoding, img.is_bigendian != 0, img.width, img.height, img.step, img.data.size()});
+    if (!layout.empty()) return Refuse(layout, out);
     std::optional<Eigen::Vector3d> goal;
     std::optional<OdomSample> odom;
     std::optional<sensor_msgs::CameraInfo> info;
@@ -265,10 +277,10 @@ class PolicyNode {
     bool reset_decider = false;
     {
       // The frame's own odometry (its control period's, published before the frame) travels on another
-      // topic: wait for it (bounded), so that which odometry a decision starts from does not depend on
-      // message timing. Without it, the newest older one is used.
+      // topic: wait for it (at most ~odom_wait_s of wall time), so that which odometry a decision starts
+      // from does not depend on message timing. Without it, the newest older one is used.
       std::unique_lock<std::mutex> lock(mu_);
-      odom_cv_.wait_for(lock, std::chrono::milliseconds(200), [&] {
+      odom_cv_.wait_for(lock, std::chrono::duration<double>(odom_wait_s_), [&] {
         return !odom_.empty() && odom_.back().stamp_s > stamp - odom_period_s_ + 1e-6;
       });
       goal = goal_;
@@ -286,6 +298,12 @@ class PolicyNode {
     if (!goal) return Skip("no_goal", "no goal for this episode yet", out);
     if (!odom) return Skip("no_odometry", "no odometry at or before the frame", out);
     if (!info) return Skip("no_camera_info", "no camera info yet", out);
+    // Bad input is refused before anything is computed from it: no trajectory is sent for this frame, so the
+    // tracker flies on along the plan it has (or holds) (docs/CONVENTIONS.md, fault table).
+    const std::string size = quad_policy::DepthSizeProblem(img.width, img.height, info->width, info->height);
+    if (!size.empty()) return Refuse(size, out);
+    const std::string state = quad_policy::StateProblem(odom->state, odom->stamp_s);
+    if (!state.empty()) return Refuse(state, out);
     if (stamp - odom->stamp_s > cfg_.max_odom_age_s) {
       return Skip("stale_odometry", "latest odometry is " + std::to_string(stamp - odom->stamp_s) + " s old",
                   out);
@@ -509,6 +527,7 @@ class PolicyNode {
   std::mutex mu_;  // guards the inputs below (written by the main spinner, read by the depth thread)
   std::condition_variable odom_cv_;  // an odometry message arrived
   double odom_period_s_ = 0.005;
+  double odom_wait_s_ = 0.2;  // wall-time bound on waiting for a frame's own odometry
   std::deque<OdomSample> odom_;
   std::optional<Eigen::Vector3d> goal_;
   std::optional<sensor_msgs::CameraInfo> camera_info_;
@@ -545,6 +564,9 @@ int main(int argc, char** argv) {
     ros::spin();
   } catch (const std::exception& e) {
     ROS_FATAL("policy_node: %s", e.what());
+    // Debian's rosconsole prints nothing to the console without a config file: the reason the node stops
+    // (a bad policy file, config or parameter) also goes to stderr, so whoever started it sees it.
+    std::fprintf(stderr, "[FATAL] policy_node: %s\n", e.what());
     return 1;
   }
   return 0;

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -36,8 +37,15 @@ class LoadedPolicy:
         self.path = str(path)
         try:
             self.module, self.raw_meta = load_exported(path)
+        except json.JSONDecodeError as e:
+            raise PolicyFormatError(f"{self.path}: policy metadata is not valid JSON: {e}") from None
         except ValueError as e:
             raise PolicyFormatError(str(e)) from None
+        except RuntimeError as e:
+            # Truncated, or not a TorchScript archive at all (a text file, a zip of something else).
+            raise PolicyFormatError(f"{self.path}: cannot load the TorchScript policy: {e}") from None
+        if not isinstance(self.raw_meta, dict):
+            raise PolicyFormatError(f"{self.path}: policy metadata must be a JSON object")
         self.meta: PolicyMeta = parse_policy_meta(self.raw_meta, self.path)
         m = self.meta
         for attr, value in [
@@ -47,7 +55,9 @@ class LoadedPolicy:
             ("num_ctrl_pts", m.num_ctrl_pts),
             ("horizon_s", m.horizon_s),
         ]:
-            file_value = getattr(self.module, attr, None)
+            if not hasattr(self.module, attr):
+                raise PolicyFormatError(f"{self.path}: missing policy attribute {attr}")
+            file_value = getattr(self.module, attr)
             if file_value != value:
                 raise PolicyFormatError(
                     f"{self.path}: attribute {attr} = {file_value!r} disagrees with the metadata's {value!r}"

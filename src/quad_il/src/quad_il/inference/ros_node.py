@@ -29,6 +29,7 @@ from std_msgs.msg import String
 from quad_il.inference.config import PolicyConfigError, PolicyNodeConfig, load_policy_config
 from quad_il.inference.decider import DecisionInputs, PolicyDecider
 from quad_il.inference.geometry import pose_matrix
+from quad_il.inference.input_checks import depth_layout_problem, depth_size_problem, state_problem
 from quad_il.inference.messages import bspline_message
 from quad_il.inference.meta import PolicyFormatError
 from quad_il.inference.policy import LoadedPolicy, configure_threads
@@ -52,25 +53,34 @@ class OdomSample:
     q: np.ndarray  # x, y, z, w
 
 
-def depth_from_image(msg: Image) -> np.ndarray | None:
-    """32FC1 little-endian image -> (H, W) float32 view, None for any other layout."""
-    if msg.encoding != "32FC1" or msg.is_bigendian or msg.width == 0 or msg.height == 0:
-        return None
-    if msg.step < 4 * msg.width or msg.step % 4 or len(msg.data) < msg.step * msg.height:
-        return None
+def depth_from_image(msg: Image) -> tuple[np.ndarray | None, str]:
+    """32FC1 little-endian image -> ((H, W) float32 view, ""); any other layout: (None, the reason)."""
+    problem = depth_layout_problem(
+        msg.encoding, bool(msg.is_bigendian), msg.width, msg.height, msg.step, len(msg.data)
+    )
+    if problem:
+        return None, problem
     flat = np.frombuffer(msg.data, dtype="<f4", count=(msg.step // 4) * msg.height)
-    return flat.reshape(msg.height, msg.step // 4)[:, : msg.width]
+    return flat.reshape(msg.height, msg.step // 4)[:, : msg.width], ""
 
 
 class PolicyNode:
     def __init__(
-        self, cfg: PolicyNodeConfig, tracker_accept_timeout_s: float = 1.0, odom_period_s: float = 0.005
+        self,
+        cfg: PolicyNodeConfig,
+        tracker_accept_timeout_s: float = 1.0,
+        odom_period_s: float = 0.005,
+        odom_wait_s: float = 0.2,
     ) -> None:
         """tracker_accept_timeout_s: longest wait for the tracker to take a trajectory before the frame is
-        acknowledged; odom_period_s: the simulator's odometry period (a frame waits for its period's)."""
+        acknowledged; odom_period_s: the simulator's odometry period (a frame waits for its period's, at
+        most odom_wait_s of wall time)."""
         self.cfg = cfg
         self.tracker_accept_timeout_s = tracker_accept_timeout_s
         self.odom_period_s = odom_period_s
+        if not (math.isfinite(odom_wait_s) and odom_wait_s > 0.0):
+            raise PolicyConfigError(f"~odom_wait_s must be a finite number > 0, got {odom_wait_s}")
+        self.odom_wait_s = odom_wait_s
         configure_threads(cfg.num_threads)
         policy = LoadedPolicy(cfg.policy_file)
         self.decider = PolicyDecider(policy, cfg.safety, cfg.refusal, cfg.recovery, cfg.keeping)
@@ -84,7 +94,13 @@ class PolicyNode:
             f"steering clearance {cfg.recovery.steer_clearance_m:g} m, "
             f"final approach {cfg.recovery.final_approach_m:g} m"
         )
-        self._warm_up(policy)
+        try:
+            self._warm_up(policy)
+        except RuntimeError as e:
+            # A file whose methods exist but do not take a policy's inputs (issue 30): name the file.
+            raise PolicyFormatError(
+                f"{cfg.policy_file}: the policy's forward pass fails on a test input: {e}"
+            ) from None
         self.lock = threading.Lock()
         self.odom_cv = threading.Condition(self.lock)  # an odometry message arrived
         self.odom: collections.deque[OdomSample] = collections.deque(maxlen=400)
@@ -221,21 +237,22 @@ class PolicyNode:
         out.reason = reason
         self._count(status)
 
+    def _refuse(self, reason: str, out: PolicyDecision) -> None:
+        rospy.logwarn_throttle(2.0, f"policy_node (py): frame refused: {reason}")
+        self._skip("bad_input", reason, out)
+
     def _handle(self, msg: Image, out: PolicyDecision) -> None:
         stamp = msg.header.stamp.to_sec()
-        depth = depth_from_image(msg)
+        depth, layout = depth_from_image(msg)
         if depth is None:
-            rospy.logwarn_throttle(
-                5.0,
-                f"policy_node (py): depth frame skipped: encoding {msg.encoding}, {msg.width}x{msg.height}",
-            )
-            return self._skip("bad_input", "depth frame is not a little-endian 32FC1 image", out)
+            return self._refuse(layout, out)
         with self.odom_cv:
             # The frame's own odometry (its control period's, published before the frame) travels on another
-            # topic: wait for it (bounded), so that which odometry a decision starts from does not depend on
-            # message timing. Without it, the newest older one is used.
+            # topic: wait for it (at most odom_wait_s of wall time), so that which odometry a decision starts
+            # from does not depend on message timing. Without it, the newest older one is used.
             self.odom_cv.wait_for(
-                lambda: bool(self.odom) and self.odom[-1].stamp_s > stamp - self.odom_period_s + 1e-6, 0.2
+                lambda: bool(self.odom) and self.odom[-1].stamp_s > stamp - self.odom_period_s + 1e-6,
+                self.odom_wait_s,
             )
             goal = self.goal
             odom = next((o for o in reversed(self.odom) if o.stamp_s <= stamp + 1e-9), None)
@@ -250,6 +267,14 @@ class PolicyNode:
             return self._skip("no_odometry", "no odometry at or before the frame", out)
         if info is None:
             return self._skip("no_camera_info", "no camera info yet", out)
+        # Bad input is refused before anything is computed from it: no trajectory is sent for this frame, so
+        # the tracker flies on along the plan it has (or holds) (docs/CONVENTIONS.md, fault table).
+        size = depth_size_problem(msg.width, msg.height, int(info.width), int(info.height))
+        if size:
+            return self._refuse(size, out)
+        state = state_problem(odom.p, odom.v, odom.q, odom.stamp_s)
+        if state:
+            return self._refuse(state, out)
         if stamp - odom.stamp_s > self.cfg.max_odom_age_s:
             return self._skip("stale_odometry", f"latest odometry is {stamp - odom.stamp_s:.6f} s old", out)
         if float(np.linalg.norm(odom.p - goal)) < self.cfg.goal_tolerance_m:
@@ -445,9 +470,11 @@ def main() -> int:
             cfg,
             float(rospy.get_param("~tracker_accept_timeout_s", 1.0)),
             float(rospy.get_param("~odom_period_s", 0.005)),
+            float(rospy.get_param("~odom_wait_s", 0.2)),
         )
     except (KeyError, PolicyConfigError, PolicyFormatError, FileNotFoundError, RuntimeError) as e:
         rospy.logfatal(f"policy_node (py): {e}")
+        rospy.signal_shutdown(f"policy_node (py): {e}")
         return 1
     rospy.spin()
     return 0
