@@ -165,7 +165,9 @@ FlightStats FlyExpert(const PlannerConfig& planner_config, const quad_sim::SimCo
           controller.Compute(ref, state, t_prev_control < 0.0 ? 0.0 : now - t_prev_control);
       t_prev_control = now;
       sim.SetSo3Command(kr_tracker::ToSim(u.command));
-      stats.min_clearance_m = std::min(stats.min_clearance_m, sim.ClearanceToObstacles());
+      const double clearance_m = sim.ClearanceToObstacles();
+      stats.min_clearance_m = std::min(stats.min_clearance_m, clearance_m);
+      stats.flown.push_back({now, sim.state().p_world_body, sim.state().q_world_body, clearance_m});
       stats.path_length_m += (sim.state().p_world_body - p_prev).norm();
       p_prev = sim.state().p_world_body;
     }

@@ -3,7 +3,8 @@
 // odometry at the simulator's odometry rate (200 Hz) to the planner and the controller, a depth frame at the
 // camera rate (30 Hz) to the planner, each new trajectory to the tracker at once. Single-threaded, so a run
 // is fully deterministic (lockstep by construction) and as fast as the CPU allows. Used by the flight-quality
-// and timing benchmark (scripts/bench/planner.sh) and a closed-loop gtest.
+// and timing benchmark (scripts/bench/planner.sh), the clearance check (tools/expert_clearance_flights.cpp)
+// and a closed-loop gtest.
 #pragma once
 
 #include <kr_tracker/config.h>
@@ -11,6 +12,7 @@
 #include <quad_sim/world.h>
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>
 
 #include <cstdint>
 #include <memory>
@@ -27,6 +29,15 @@ struct FlightSetup {
   Eigen::Vector3d start_m = Eigen::Vector3d::Zero();  // the vehicle hovers here, facing the goal, at t = 0
   Eigen::Vector3d goal_m = Eigen::Vector3d::Zero();
   double timeout_s = 60.0;  // sim time
+};
+
+// One control period of a flight: the vehicle's pose and its exact clearance (the simulator's
+// ClearanceToObstacles: oriented vehicle box to the nearest world box) at that time.
+struct FlownSample {
+  double t_s = 0.0;
+  Eigen::Vector3d p_world_body = Eigen::Vector3d::Zero();
+  Eigen::Quaterniond q_world_body = Eigen::Quaterniond::Identity();
+  double clearance_m = 0.0;
 };
 
 struct FlightStats {
@@ -49,6 +60,7 @@ struct FlightStats {
   std::vector<bool> map_esdf_computed;    // per depth frame: whether the ESDF was recomputed after it
   std::vector<std::string> failure_reasons;
   std::vector<std::string> events;  // "t=1.234 s: <state machine transition or failure>"
+  std::vector<FlownSample> flown;   // every control period (the odometry rate), in time order
 };
 
 // The simulator's world generator config with clear zones at start and goal.
