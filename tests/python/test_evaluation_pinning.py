@@ -13,11 +13,12 @@ import yaml
 
 from quad_il.evaluation import run_eval
 from quad_il.evaluation.episodes import EpisodeResult, append_result, read_episodes, read_results
-from quad_il.evaluation.pin import RunPin, read_pin, sha256_of
+from quad_il.evaluation.pin import RunPin, read_pin
 from quad_il.evaluation.sets import EvalSetError, get_eval_set, load_eval_sets, world_density
 from quad_il.evaluation.tiers import TierError, apply_tier, render_tier_config
 from quad_il.evaluation.tiers import main as tiers_main
 from quad_il.inference.config import config_from_tree, load_policy_config
+from quad_il.tools.provenance import sha256_file as sha256_of
 
 ROOT = Path(__file__).resolve().parents[2]
 KEEP = ROOT / "config" / "policy_keep.yaml"

@@ -23,10 +23,10 @@ from pathlib import Path
 import numpy as np
 import rospy
 import rostest
-import tf2_ros
 import yaml
-from geometry_msgs.msg import PoseStamped, TransformStamped
+from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
+from policy_nodes_common import NAMESPACES, broadcast_camera_mount, policy_nodes
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import String
 
@@ -35,7 +35,6 @@ from quad_il.learning.config import ModelConfig
 from quad_il.learning.synthetic import make_synthetic_arrays
 from quad_msgs.msg import Bspline, FrameAck, PolicyDecision
 
-NAMESPACES = ("cpp", "py")
 GUARD_S = 60.0  # wall-time failure guard of every wait
 H, W = 60, 80
 K = np.array([387.2 * W / 640, 0, (W - 1) / 2, 0, 387.2 * H / 480, (H - 1) / 2, 0, 0, 1])
@@ -98,8 +97,6 @@ def depth_message(depth: np.ndarray, stamp: rospy.Time, encoding: str = "32FC1")
 
 class InferNodeParity(unittest.TestCase):
     def test_cpp_and_python_nodes_publish_the_same_decisions(self) -> None:
-        import roslaunch
-
         work = Path(tempfile.mkdtemp(prefix="infer_node_parity_"))
         self.addCleanup(shutil.rmtree, work, True)
         model = ModelConfig(input_height=32, input_width=32, state_frame="local", output_frame="local")
@@ -118,39 +115,19 @@ class InferNodeParity(unittest.TestCase):
                 f"/{ns}/camera/depth/camera_info", CameraInfo, queue_size=1, latch=True
             )
             pubs[ns]["goal"] = rospy.Publisher(f"/{ns}/planner/goal", PoseStamped, queue_size=1, latch=True)
-        tf = self.tf = tf2_ros.StaticTransformBroadcaster()
-        t = TransformStamped()
-        t.header.frame_id, t.child_frame_id = "base_link", "camera"
-        t.transform.translation.x = 0.1
-        t.transform.rotation.x, t.transform.rotation.y = -0.5, 0.5  # optical frame looking along base_link +x
-        t.transform.rotation.z, t.transform.rotation.w = -0.5, 0.5
-        tf.sendTransform(t)
-
-        launch = roslaunch.scriptapi.ROSLaunch()
-        launch.start()
-        procs = []
-        for ns, (pkg, node_type) in zip(
-            NAMESPACES, [("quad_policy", "policy_node"), ("quad_il", "policy_node.py")], strict=True
-        ):
-            rospy.set_param(f"/{ns}/policy_node/config", str(config_path))
-            rospy.set_param(f"/{ns}/policy_node/policy_file", str(policy))
-            rospy.set_param(f"/{ns}/policy_node/send_to_tracker", False)
+        self.tf = broadcast_camera_mount()
+        params = {
+            "config": str(config_path),
+            "policy_file": str(policy),
+            "send_to_tracker": False,
             # A frame waits for its own odometry (published just before it, on another topic) as long as it
             # takes: the guard only.
-            rospy.set_param(f"/{ns}/policy_node/odom_wait_s", GUARD_S)
-            procs.append(
-                launch.launch(
-                    roslaunch.core.Node(pkg, node_type, name="policy_node", namespace=ns, output="log")
-                )
-            )
-        try:
+            "odom_wait_s": GUARD_S,
+        }
+        with policy_nodes(params) as procs:
             self._feed_and_compare(outputs, pubs)
             for p in procs:
                 self.assertTrue(p.is_alive(), f"{p.name} died")
-        finally:
-            for p in procs:
-                p.stop()
-            launch.stop()
 
     def _wait_until(self, predicate, what: str) -> None:
         deadline = time.monotonic() + GUARD_S

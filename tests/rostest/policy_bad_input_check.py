@@ -26,9 +26,9 @@ import actionlib
 import numpy as np
 import rospy
 import rostest
-import tf2_ros
-from geometry_msgs.msg import PoseStamped, TransformStamped
+from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
+from policy_nodes_common import NAMESPACES, broadcast_camera_mount, policy_nodes
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import String
 
@@ -36,7 +36,6 @@ from quad_il.inference.random_policy import export_goal_line_policy
 from quad_msgs.msg import Bspline, FrameAck, PolicyDecision, TrackBsplineAction
 from quad_msgs.srv import SwitchTracker, SwitchTrackerResponse
 
-NAMESPACES = ("cpp", "py")
 H, W = 60, 80
 K = [387.2 * W / 640, 0, (W - 1) / 2, 0, 387.2 * H / 480, (H - 1) / 2, 0, 0, 1]
 GUARD_S = 60.0  # wall-time failure guard of every wait (each wait ends on its condition)
@@ -164,45 +163,22 @@ class NodeIO:
 
 class PolicyBadInput(unittest.TestCase):
     def test_bad_odometry_and_depth_are_refused_with_a_reason_and_nothing_sent(self) -> None:
-        import roslaunch
-
         work = Path(tempfile.mkdtemp(prefix="policy_bad_input_"))
         self.addCleanup(shutil.rmtree, work, True)
         policy = export_goal_line_policy(work / "policy.ts")
         io = {ns: NodeIO(ns) for ns in NAMESPACES}
-        tf = tf2_ros.StaticTransformBroadcaster()
-        t = TransformStamped()
-        t.header.frame_id, t.child_frame_id = "base_link", "camera"
-        t.transform.translation.x = 0.1
-        t.transform.rotation.x, t.transform.rotation.y = -0.5, 0.5  # optical frame looking along base_link +x
-        t.transform.rotation.z, t.transform.rotation.w = -0.5, 0.5
-        tf.sendTransform(t)
-
-        launch = roslaunch.scriptapi.ROSLaunch()
-        launch.start()
-        procs = []
-        for ns, (pkg, node_type) in zip(
-            NAMESPACES, [("quad_policy", "policy_node"), ("quad_il", "policy_node.py")], strict=True
-        ):
-            prefix = f"/{ns}/policy_node"
-            rospy.set_param(f"{prefix}/config", rospy.get_param("~policy_config"))
-            rospy.set_param(f"{prefix}/policy_file", str(policy))
+        tf = broadcast_camera_mount()
+        params = {
+            "config": rospy.get_param("~policy_config"),
+            "policy_file": str(policy),
             # Wait on conditions: a frame waits for its odometry, the tracker's answer comes (guards only).
-            rospy.set_param(f"{prefix}/odom_wait_s", GUARD_S)
-            rospy.set_param(f"{prefix}/tracker_accept_timeout_s", GUARD_S)
-            procs.append(
-                launch.launch(
-                    roslaunch.core.Node(pkg, node_type, name="policy_node", namespace=ns, output="log")
-                )
-            )
-        try:
+            "odom_wait_s": GUARD_S,
+            "tracker_accept_timeout_s": GUARD_S,
+        }
+        with policy_nodes(params) as procs:
             self._run(io, tf)
             for p in procs:
                 self.assertTrue(p.is_alive(), f"{p.name} died")
-        finally:
-            for p in procs:
-                p.stop()
-            launch.stop()
 
     def _send(self, io, stamp: float, depth: Image, odom: Odometry | None) -> dict[str, PolicyDecision]:
         """One frame to both nodes; their decisions once both acknowledged it."""

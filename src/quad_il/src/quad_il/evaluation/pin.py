@@ -11,46 +11,13 @@ policy episode was flown.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
-import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 PIN_FILE = "pin.json"
 PIN_FORMAT = 1
-
-
-def sha256_bytes(data: bytes) -> str:
-    return hashlib.sha256(data).hexdigest()
-
-
-def sha256_of(path: str | Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while block := f.read(1 << 22):
-            h.update(block)
-    return h.hexdigest()
-
-
-def git_commit(root: Path) -> tuple[str, bool | None]:
-    """(HEAD's sha or 'unknown', whether tracked files differ from it; None when unknown)."""
-    try:
-        sha = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, timeout=10, check=True
-        ).stdout.strip()
-        status = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
-            cwd=root,
-            capture_output=True,
-            text=True,
-            timeout=30,
-            check=True,
-        ).stdout
-        return sha, bool(status.strip())
-    except (OSError, subprocess.SubprocessError):
-        return "unknown", None
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,6 @@ BENCH lines on stdout: eval_expert_{success,collision,timeout}_rate and eval_<py
 from __future__ import annotations
 
 import math
-import os
 import subprocess
 import tempfile
 from pathlib import Path
@@ -22,6 +21,7 @@ from quad_il.evaluation.metrics import ControllerSummary, summarise
 from quad_il.evaluation.pin import RunPin
 from quad_il.evaluation.stats import format_rate, wilson_interval
 from quad_il.inference.geometry import rotation_matrix
+from quad_il.tools.binaries import BinaryNotFound, find_binary
 
 COLOURS = {"expert": "tab:blue", "py": "tab:green", "cpp": "tab:orange"}
 NAMES = {"expert": "expert (fast_planner)", "py": "policy, Python", "cpp": "policy, C++ (LibTorch)"}
@@ -107,12 +107,11 @@ def _fmt(v: float, digits: int = 2, pct: bool = False) -> str:
 def world_boxes(sim_config: Path, spec: EpisodeSpec) -> list[dict[str, Any]]:
     """The episode's world, regenerated exactly by quad_sim_world (same seed, config and clear zones as the
     simulator's reset); [] when the tool is not built."""
-    tool = None
-    for prefix in os.environ.get("CMAKE_PREFIX_PATH", "").split(os.pathsep):
-        if prefix and (Path(prefix) / "lib" / "quad_sim" / "quad_sim_world").is_file():
-            tool = Path(prefix) / "lib" / "quad_sim" / "quad_sim_world"
-            break
-    if tool is None or not sim_config.is_file():
+    try:
+        tool = find_binary("quad_sim", "quad_sim_world")
+    except BinaryNotFound:
+        return []
+    if not sim_config.is_file():
         return []
     sx, sy, _ = spec.start_world
     with tempfile.TemporaryDirectory() as d:

@@ -49,19 +49,12 @@ from quad_il.evaluation.episodes import (
     read_results,
     write_episodes,
 )
-from quad_il.evaluation.pin import (
-    RunPin,
-    differences,
-    git_commit,
-    merge,
-    read_pin,
-    sha256_bytes,
-    sha256_of,
-    write_pin,
-)
+from quad_il.evaluation.pin import RunPin, differences, merge, read_pin, write_pin
 from quad_il.evaluation.sets import EvalSetError, get_eval_set, world_density
 from quad_il.evaluation.tiers import DEFAULT_TIER, TIERS, TierError, render_tier_config
+from quad_il.tools.binaries import BinaryNotFound, find_binary
 from quad_il.tools.ports import free_port
+from quad_il.tools.provenance import git_commit, sha256_bytes, sha256_file
 
 ROOT = Path(os.environ.get("QUAD_IL_ROOT") or Path(__file__).resolve().parents[5])
 CONTROLLERS = ("expert", "py", "cpp")
@@ -116,11 +109,11 @@ def eval_sim_config(base_path: Path, controller: str, density: float | None) -> 
 
 def node_available(controller: str) -> str:
     """'' if the controller's node is built, else why not."""
-    pkg, exe = NODE[controller]
-    for prefix in os.environ.get("CMAKE_PREFIX_PATH", "").split(os.pathsep):
-        if prefix and (Path(prefix) / "lib" / pkg / exe).is_file():
-            return ""
-    return f"{pkg}/{exe} is not built (not in CMAKE_PREFIX_PATH)"
+    try:
+        find_binary(*NODE[controller])
+    except BinaryNotFound as e:
+        return str(e)
+    return ""
 
 
 def _stop_group(proc: subprocess.Popen, timeout_s: float = 20.0) -> None:
@@ -407,21 +400,21 @@ def resolve_episodes(args: argparse.Namespace, sim_base: dict) -> None:
 def make_pin(args: argparse.Namespace, policy_controllers: bool, tier_text: str) -> RunPin:
     sim = Path(args.sim_config)
     vehicle = (sim.parent / yaml.safe_load(sim.read_text())["vehicle_file"]).resolve()
-    commit, dirty = git_commit(ROOT)
+    commit = git_commit(ROOT)
     return RunPin(
         tier=args.tier if policy_controllers else "",
         eval_set=args.set,
-        policy_sha256=sha256_of(args.policy) if policy_controllers else "",
+        policy_sha256=sha256_file(args.policy) if policy_controllers else "",
         policy_path=str(Path(args.policy).resolve()) if policy_controllers else "",
         policy_config_sha256=sha256_bytes(tier_text.encode()) if policy_controllers else "",
         policy_config_base=str(Path(args.policy_config).resolve()) if policy_controllers else "",
-        sim_config_sha256=sha256_of(sim),
+        sim_config_sha256=sha256_file(sim),
         sim_config_path=str(sim.resolve()),
-        vehicle_sha256=sha256_of(vehicle),
-        planner_config_sha256=sha256_of(PLANNER_CONFIG),
+        vehicle_sha256=sha256_file(vehicle),
+        planner_config_sha256=sha256_file(PLANNER_CONFIG),
         density=args.density,
-        commit=commit,
-        dirty=dirty,
+        commit=commit["commit"],
+        dirty=commit["dirty"],
     )
 
 

@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import hashlib
 import platform
-import subprocess
 import sys
 from pathlib import Path
 from typing import Any
@@ -14,26 +12,7 @@ import torch
 import yaml
 
 from quad_il.learning.dataset import PreparedData, Split, expand_paths
-
-
-def git_commit(start: Path | None = None) -> dict[str, Any]:
-    """{'commit': sha or 'unknown', 'dirty': bool | None} of this package's repository (read-only git)."""
-    cwd = start or Path(__file__).resolve().parent
-    try:
-        sha = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=cwd, capture_output=True, text=True, timeout=10, check=True
-        ).stdout.strip()
-        status = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
-            cwd=cwd,
-            capture_output=True,
-            text=True,
-            timeout=30,
-            check=True,
-        ).stdout
-        return {"commit": sha, "dirty": bool(status.strip())}
-    except (OSError, subprocess.SubprocessError):
-        return {"commit": "unknown", "dirty": None}
+from quad_il.tools.provenance import git_commit, sha256_file
 
 
 def software_info() -> dict[str, Any]:
@@ -45,14 +24,6 @@ def software_info() -> dict[str, Any]:
         "platform": platform.platform(),
         "torch_threads": torch.get_num_threads(),
     }
-
-
-def sha256_file(path: Path, chunk: int = 1 << 22) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while block := f.read(chunk):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _collector_manifest(path: Path) -> dict[str, Any] | None:
