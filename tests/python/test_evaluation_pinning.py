@@ -206,6 +206,7 @@ def test_resuming_with_another_simulator_config_or_commit_is_refused(
     capsys.readouterr()
     assert _eval(out, "--controllers", "expert", "--sim-config", str(other)) == 1
     assert "sim_config_sha256: run has" in capsys.readouterr().err
+    assert "The expert alone (no policy, no tier)." in (out / "report.md").read_text()
     pin = json.loads((out / "pin.json").read_text())
     pin["commit"] = "0" * 40
     (out / "pin.json").write_text(json.dumps(pin))

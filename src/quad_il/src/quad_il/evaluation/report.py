@@ -268,7 +268,12 @@ def write_report(
         f"{len(specs)} episodes on world seeds {_seed_ranges(sorted({s.seed for s in specs}))}, box density "
         f"{options.get('density') or 'of the sim config'}, start/goal {options.get('min_distance_m')}-"
         f"{options.get('max_distance_m')} m apart, episode timeout {options.get('episode_timeout_s')} s (sim "
-        f"time), simulator in lockstep. Policy nodes in tier **`{tier}`** ({TIER_WORDS.get(tier, tier)}).",
+        f"time), simulator in lockstep. "
+        + (
+            f"Policy nodes in tier **`{tier}`** ({TIER_WORDS.get(tier, tier)})."
+            if any(c != "expert" for c in controllers)
+            else "The expert alone (no policy, no tier)."
+        ),
         "",
         *pin_lines(pin),
         "| controller | tier | episodes | success [95 % CI] | collision [95 % CI] | timeout [95 % CI] | "
