@@ -230,6 +230,10 @@ def test_force_new_moves_the_old_run_aside_and_starts_over(
     assert len(read_results(old[0] / "cpp.jsonl")) == 2  # nothing lost
     assert read_pin(out).policy_sha256 == sha256_of(b)
     assert fake_flights == [("cpp", 0), ("cpp", 1), ("cpp", 0), ("cpp", 1)]
+    # An expert-only fresh start keeps nothing of the run it moved aside: another policy may fly after it.
+    assert _eval(out, "--controllers", "expert", "--force-new") == 0
+    assert read_pin(out).policy_sha256 == ""
+    assert _eval(out, "--policy", str(a), "--controllers", "cpp") == 0
 
 
 def test_the_expert_may_be_flown_first_and_the_policy_added(

@@ -448,7 +448,7 @@ def pin_run(out: Path, pin: RunPin, force_new: bool) -> RunPin:
                 + "; ".join(diffs)
                 + ". Use --force-new (moves the old run aside) or another --out"
             )
-        if not diffs:
+        if not diffs and not force_new:
             pin = merge(old, pin)
     if force_new and (old is not None or any(out.iterdir())):
         print(f"[eval] --force-new: the earlier run moved to {move_aside(out)}", file=sys.stderr)
