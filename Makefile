@@ -4,7 +4,7 @@
 #   make build   idempotent set-up (apt, .venv, pip) + catkin build
 #   make eval POLICY=runs/x/policy.ts [SET=dev|dev_dense|test|test_dense | SEEDS=9000-9019 EPISODES=20 DENSITY=]
 #             [TIER=bare|safety|shield] [CONTROLLERS=expert,py,cpp] [EVAL_OUT=results/eval]
-#             [POLICY_CONFIG=config/policy_keep.yaml] [FORCE_NEW=1]
+#             [POLICY_CONFIG=config/policy.yaml] [FORCE_NEW=1]
 #                closed-loop evaluation of expert, Python and C++ policy on held-out worlds (docs/inference.md)
 #   make shell   a shell with the workspace sourced
 #   make bench-<component>   BENCH lines of one component (sim, tracker, planner, collector, train, inference, scale)

@@ -13,7 +13,7 @@
 #   DEMO_TRAIN_ARGS (train_on_cpp_datasets.py arguments; default: state and output in the vehicle's local frame
 #   and the rate decayed over the run, the recipe of the trained policy in docs/RESULTS.md; on synthetic data
 #   the local frame reached a far lower validation loss than the thesis's world frame, docs/scaling.md)
-# The closed loop flies the policy nodes with run_eval's default config, config/policy_keep.yaml.
+# The closed loop flies the policy nodes with run_eval's default config, config/policy.yaml (infer.launch's too).
 set -euo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$ROOT"

@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
 # Formatting and lint: ruff (Python) and clang-format (C++), check only. `make format` applies both.
+# `check` also fails on an import cycle between the quad_il Python subpackages (quad_il/tools/import_cycles.py).
 set -euo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$ROOT"
@@ -15,4 +16,6 @@ else
   .venv/bin/ruff check "${py_dirs[@]}"
   .venv/bin/ruff format --check "${py_dirs[@]}"
   [ ${#cxx[@]} -eq 0 ] || clang-format --dry-run --Werror "${cxx[@]}"
+  # Standard library only: runs without the devel space or an installed quad_il.
+  .venv/bin/python src/quad_il/src/quad_il/tools/import_cycles.py
 fi

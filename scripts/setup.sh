@@ -2,14 +2,16 @@
 # Idempotent set-up of a quad_il workspace on Debian 12:
 #   1. Debian packages (ROS 1, Bullet, NLopt, ...) from scripts/apt-packages.txt, only the missing ones;
 #   2. .venv from Debian's /usr/bin/python3 with system site packages (so rospy/cv2 come from Debian);
-#   3. pinned pip requirements (requirements.txt, constrained by constraints.txt), skipped when unchanged.
+#   3. pinned pip requirements (requirements.txt, constrained by constraints.txt), skipped when unchanged;
+#   4. the quad_il Python package (src/quad_il) installed into .venv as editable, so training_only/ and the
+#      other scripts import it without touching sys.path; skipped when .venv already imports it from here.
 # When everything is in place this takes about a second. Extra packages for experiments:
 #   QUAD_IL_EXTRA_APT="pkg ..."  QUAD_IL_EXTRA_PIP="req ..."
-# QUAD_IL_SETUP_STEPS (default "apt venv pip") selects steps.
+# QUAD_IL_SETUP_STEPS (default "apt venv pip pkg") selects steps.
 set -euo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$ROOT"
-STEPS=${QUAD_IL_SETUP_STEPS:-apt venv pip}
+STEPS=${QUAD_IL_SETUP_STEPS:-apt venv pip pkg}
 say() { echo "[setup] $*"; }
 die() { echo "[setup] ERROR: $*" >&2; exit 1; }
 
@@ -93,11 +95,41 @@ step_pip() {
   echo "$want" > "$stamp"
 }
 
+step_pkg() {
+  local src="$ROOT/src/quad_il/src" stamp=.venv/.quad_il_editable.sha256 want found
+  [ -x .venv/bin/python ] || die "pkg: .venv/bin/python missing (run the venv step first)"
+  want=$( { cat src/quad_il/setup.py src/quad_il/package.xml; echo "$src"; } | sha256sum | cut -d' ' -f1)
+  # -I: ignore PYTHONPATH (scripts/env.sh and catkin's devel space put the source tree there), so this asks
+  # what the venv alone imports.
+  found=$(.venv/bin/python -I -c 'import quad_il; print(quad_il.__file__)' 2>/dev/null || true)
+  if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ] && [ "$found" = "$src/quad_il/__init__.py" ]; then
+    say "pkg: quad_il installed (editable, $src)"
+    return
+  fi
+  say "pkg: installing quad_il into .venv (editable, $src)"
+  local log
+  log=$(mktemp)
+  # catkin also runs src/quad_il/setup.py (catkin_python_setup, for the devel space); both use the one file.
+  # It imports catkin_pkg (Debian's, a system site package): hence no build isolation. --use-pep517: pip 23's
+  # legacy `setup.py develop` path would build in isolation anyway.
+  if ! .venv/bin/pip install --disable-pip-version-check -q --no-deps --no-build-isolation --use-pep517 \
+        -e src/quad_il >"$log" 2>&1; then
+    tail -n 20 "$log" >&2
+    die "pkg: 'pip install -e src/quad_il' failed (full log: $log)"
+  fi
+  rm -f "$log"
+  found=$(.venv/bin/python -I -c 'import quad_il; print(quad_il.__file__)' 2>/dev/null || true)
+  [ "$found" = "$src/quad_il/__init__.py" ] \
+    || die "pkg: after the install .venv imports quad_il from '${found:-nowhere}', not $src/quad_il"
+  echo "$want" > "$stamp"
+}
+
 for s in $STEPS; do
   case "$s" in
     apt) step_apt ;;
     venv) step_venv ;;
     pip) step_pip ;;
-    *) die "unknown step '$s' in QUAD_IL_SETUP_STEPS (known: apt venv pip)" ;;
+    pkg) step_pkg ;;
+    *) die "unknown step '$s' in QUAD_IL_SETUP_STEPS (known: apt venv pip pkg)" ;;
   esac
 done

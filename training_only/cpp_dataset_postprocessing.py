@@ -8,12 +8,8 @@ Thin entry point: the work is quad_il.data.postprocess (format and resampling: d
 """
 
 import sys
-from pathlib import Path
 
-# Runnable from a plain checkout too: the ROS-free package lives in src/quad_il/src.
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src" / "quad_il" / "src"))
-
-from quad_il.data.postprocess import main  # noqa: E402
+from quad_il.data.postprocess import main  # quad_il is installed in the venv (scripts/setup.sh)
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -15,24 +15,28 @@ import argparse
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src" / "quad_il" / "src"))
-
-from quad_il.learning.dataset import DatasetError  # noqa: E402
-from quad_il.learning.evaluation import evaluate  # noqa: E402
-from quad_il.learning.metrics import DEFAULT_BHATTACHARYYA_REG_M2  # noqa: E402
+from quad_il.learning.dataset import DatasetError
+from quad_il.learning.evaluation import evaluate
+from quad_il.learning.metrics import DEFAULT_BHATTACHARYYA_REG_M2
+from quad_il.tools.cli import HelpFormatter
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
     ap.add_argument("--policy", required=True, help="run directory, exported policy.ts or checkpoint .pt")
     ap.add_argument(
         "--data", action="append", required=True, help="held-out dataset path; repeat for several"
     )
     ap.add_argument("--out", required=True, help="output directory")
-    ap.add_argument("--bhattacharyya-reg-m2", type=float, default=DEFAULT_BHATTACHARYYA_REG_M2)
-    ap.add_argument("--batch-size", type=int, default=64)
+    ap.add_argument(
+        "--bhattacharyya-reg-m2",
+        type=float,
+        default=DEFAULT_BHATTACHARYYA_REG_M2,
+        help="covariance regulariser (m^2)",
+    )
+    ap.add_argument("--batch-size", type=int, default=64, help="inference batch size")
     ap.add_argument("--figure-seed", type=int, default=0, help="seed choosing the 12 samples of the figure")
-    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--threads", type=int, default=2, help="torch threads")
     ap.add_argument(
         "--allow-seen-worlds", action="store_true", help="evaluate even on worlds used in training"
     )

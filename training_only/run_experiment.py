@@ -22,14 +22,15 @@ import shlex
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "src" / "quad_il" / "src"))
+from quad_il.learning.checkpoint import CheckpointError
+from quad_il.learning.config import ConfigError, load_config
+from quad_il.learning.dataset import DatasetError
+from quad_il.learning.plots import plot_run_comparison, read_metrics_csv
+from quad_il.learning.trainer import NonFiniteLossError, RunDirError, Trainer
+from quad_il.tools.cli import HelpFormatter
+from quad_il.tools.repo import repo_root
 
-from quad_il.learning.checkpoint import CheckpointError  # noqa: E402
-from quad_il.learning.config import ConfigError, load_config  # noqa: E402
-from quad_il.learning.dataset import DatasetError  # noqa: E402
-from quad_il.learning.plots import plot_run_comparison, read_metrics_csv  # noqa: E402
-from quad_il.learning.trainer import NonFiniteLossError, RunDirError, Trainer  # noqa: E402
+ROOT = repo_root()
 
 EXPERIMENTS = {
     "loss": ("loss_mse", "loss_sse", "MSE vs SSE loss (thesis Figure 4.2)"),
@@ -39,15 +40,15 @@ EXPERIMENTS = {
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("experiment", choices=sorted(EXPERIMENTS))
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
+    ap.add_argument("experiment", choices=sorted(EXPERIMENTS), help="the comparison (see above)")
     ap.add_argument("--data", action="append", required=True, help="dataset path (repeat for several)")
     ap.add_argument(
         "--data-large", action="append", default=[], help="dataset_size: the large dataset's paths"
     )
     ap.add_argument("--config", default=str(ROOT / "config" / "train.yaml"), help="base config")
     ap.add_argument("--out", default="runs/experiments", help="parent directory of the experiment")
-    ap.add_argument("--epochs", type=int)
+    ap.add_argument("--epochs", type=int, help="optim.epochs of both runs (default: the configs')")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override for both runs")
     ap.add_argument("--resume", action="store_true", help="continue runs that already have a checkpoint")
     args = ap.parse_args(argv)

@@ -16,8 +16,8 @@ mkdir -p "$OUT"
 bench=""
 IFS=: read -r -a prefixes <<< "${CMAKE_PREFIX_PATH:-}"
 for p in "${prefixes[@]}"; do
-  if [ -n "$p" ] && [ -x "$p/lib/quad_policy/policy_bench" ]; then
-    bench="$p/lib/quad_policy/policy_bench"
+  if [ -n "$p" ] && [ -x "$p/lib/quad_bench/policy_bench" ]; then
+    bench="$p/lib/quad_bench/policy_bench"
     break
   fi
 done

@@ -20,11 +20,11 @@ BENCH_BIN=${PLANNER_BENCH:-}
 if [ -z "$BENCH_BIN" ]; then
   IFS=: read -r -a prefixes <<< "${CMAKE_PREFIX_PATH:-}"
   for p in "${prefixes[@]}" "$ROOT/devel"; do
-    if [ -x "$p/lib/fast_planner/planner_bench" ]; then BENCH_BIN="$p/lib/fast_planner/planner_bench"; break; fi
+    if [ -x "$p/lib/quad_bench/planner_bench" ]; then BENCH_BIN="$p/lib/quad_bench/planner_bench"; break; fi
   done
 fi
 if [ -z "$BENCH_BIN" ] || [ ! -x "$BENCH_BIN" ]; then
-  echo "bench planner: planner_bench not found${BENCH_BIN:+ at $BENCH_BIN} (build fast_planner first)" >&2
+  echo "bench planner: planner_bench not found${BENCH_BIN:+ at $BENCH_BIN} (build quad_bench first)" >&2
   exit 1
 fi
 

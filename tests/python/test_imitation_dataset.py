@@ -1,22 +1,30 @@
-"""The Python collector's episode files: round trip, atomic writes, torn and foreign files."""
+"""The interactive collector's demonstrations: the one dataset format (shards + manifest) with the record
+profile of quad_il.imitation.dataset; round trip, episodes appended, what the C++ reader makes of it,
+errors."""
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
+from quad_il.data import open_dataset
+from quad_il.data.format import DatasetError, decode_depth_codes, encode_depth_m
+from quad_il.data.synthetic import find_collector_tool, write_synthetic_dataset
 from quad_il.imitation import Controller, ImitationError, Observation, Partition, Record, SplineAction
 from quad_il.imitation.dataset import (
-    DatasetError,
-    episode_filename,
-    list_episodes,
-    read_episode,
-    records_to_arrays,
-    write_episode,
+    RECORD_PROFILE,
+    EpisodeWriter,
+    episodes,
+    read_records,
+    read_round,
+    shard_records,
+    write_dataset,
 )
 
 
@@ -59,19 +67,17 @@ def make_records(n: int = 5, depth: bool = True, features: bool = True, k: int =
 
 
 def assert_same(a: Record, b: Record) -> None:
-    for f in ("stamp_s", "frame_seq", "episode_id"):
+    """b is a's record read back: what the format stores, exactly (depth: its millimetre coding)."""
+    for f in ("stamp_s", "episode_id"):
         assert getattr(a.obs, f) == getattr(b.obs, f)
+    expected_odom = a.obs.odom_stamp_s if math.isfinite(a.obs.odom_stamp_s) else a.obs.stamp_s
+    assert b.obs.odom_stamp_s == expected_odom
     for f in ("p_world_body", "v_world", "q_world_body", "goal_world"):
         np.testing.assert_array_equal(getattr(a.obs, f), getattr(b.obs, f))
-    for f in ("depth_m", "features"):
-        x, y = getattr(a.obs, f), getattr(b.obs, f)
-        assert (x is None) == (y is None)
-        if x is not None:
-            np.testing.assert_array_equal(x, y)
+    np.testing.assert_array_equal(b.obs.depth_m, decode_depth_codes(encode_depth_m(a.obs.depth_m)))
+    assert b.obs.features is None and b.contrast is None  # not stored
     assert a.label.allclose(b.label) and a.label.traj_id == b.label.traj_id
-    assert (a.contrast is None) == (b.contrast is None)
-    if a.contrast is not None and b.contrast is not None:
-        assert a.contrast.allclose(b.contrast)
+    assert a.label.start_time_s == b.label.start_time_s
     assert (a.partition, a.source, a.controller, a.round_index) == (
         b.partition,
         b.source,
@@ -82,89 +88,113 @@ def assert_same(a: Record, b: Record) -> None:
         np.testing.assert_equal(getattr(a, f), getattr(b, f))
 
 
-@pytest.mark.parametrize(("depth", "features"), [(True, True), (False, False)])
-def test_records_round_trip_exactly(tmp_path: Path, depth: bool, features: bool) -> None:
-    records = make_records(depth=depth, features=features)
-    path = write_episode(tmp_path, 7, records)
-    assert path.name == episode_filename(7) == "episode_000007.npz"
-    back = read_episode(path)
+def test_records_round_trip_with_what_the_format_stores(tmp_path: Path) -> None:
+    records = make_records()
+    write_dataset(tmp_path / "r", records)
+    back = read_records(tmp_path / "r")
     assert len(back) == len(records)
-    for a, b in zip(records, back, strict=True):
+    for i, (a, b) in enumerate(zip(records, back, strict=True)):
         assert_same(a, b)
-    assert list_episodes(tmp_path) == ([path], [])
+        assert b.obs.frame_seq == i  # the dataset's seq
+    assert math.isnan(back[0].score) and back[1].score == 0.5  # NaN extras stay NaN
 
 
-def test_write_leaves_no_partial_file_and_refuses_to_overwrite(tmp_path: Path) -> None:
-    write_episode(tmp_path, 1, make_records(2))
-    assert not list(tmp_path.glob("*.partial"))
-    with pytest.raises(DatasetError, match="already exists"):
-        write_episode(tmp_path, 1, make_records(2))
+def test_episodes_are_appended_and_the_cpp_reader_verifies_the_round(tmp_path: Path) -> None:
+    recs = make_records(6)
+    first = [dataclasses.replace(r, obs=dataclasses.replace(r.obs, episode_id=3)) for r in recs[:2]]
+    second = [dataclasses.replace(r, obs=dataclasses.replace(r.obs, episode_id=4)) for r in recs[2:]]
+    w = EpisodeWriter(tmp_path / "r", {"round_index": "2", "algorithm": "dagger"}, fsync=False)
+    assert w.write(11, first) == 2
+    m = yaml.safe_load((tmp_path / "r" / "manifest.yaml").read_text())
+    assert m["status"] == "incomplete" and m["run_info"]["record_profile"] == RECORD_PROFILE
+    assert w.write(12, second, camera_fx_px=193.6) == 4  # the dataset exists: its camera stays
+    assert w.finalize()
+    m = yaml.safe_load((tmp_path / "r" / "manifest.yaml").read_text())
+    assert m["status"] == "complete" and m["counts"]["written"] == 6
+    assert m["episodes"] == [
+        {"episode_id": 3, "world_seed": 11, "records": 2},
+        {"episode_id": 4, "world_seed": 12, "records": 4},
+    ]
+    assert m["run_info"] == {"record_profile": RECORD_PROFILE, "round_index": "2", "algorithm": "dagger"}
+    verify = subprocess.run(
+        [str(find_collector_tool("read_dataset")), "verify", str(tmp_path / "r")],
+        capture_output=True,
+        text=True,
+    )
+    assert verify.returncode == 0, verify.stdout
+    data = read_round(tmp_path / "r")
+    assert data is not None and data.round_index == 2 and len(data.records) == 6
+    assert [len(e) for e in episodes(read_records(tmp_path / "r"))] == [2, 4]
+    text = [bytes(t).rstrip(b"\0").decode() for t in data.records["plan_status_text"]]
+    assert text[:3] == [f"{r.controller.value} {r.source}" for r in recs[:3]]
+    assert data.records["plan_status_code"].tolist() == [0, 1, 2, 3, 0, 1]  # the partition codes
 
 
-def test_torn_partial_files_are_reported_and_never_read(tmp_path: Path) -> None:
-    path = write_episode(tmp_path, 1, make_records(2))
-    torn = tmp_path / "episode_000002.npz.partial"
-    torn.write_bytes(path.read_bytes()[:100])
-    assert list_episodes(tmp_path) == ([path], [torn])
-    with pytest.raises(DatasetError, match="incomplete"):
-        read_episode(torn)
+def test_the_in_memory_records_equal_the_written_ones(tmp_path: Path) -> None:
+    recs = make_records(4)
+    write_dataset(tmp_path / "r", recs, world_seed=0)
+    written = read_round(tmp_path / "r")
+    assert written is not None
+    assert written.records.tobytes() == shard_records(recs).tobytes()
 
 
-def test_truncated_foreign_and_future_files_give_clear_errors(tmp_path: Path) -> None:
-    path = write_episode(tmp_path, 1, make_records(2))
-    cut = tmp_path / "episode_000003.npz"
-    cut.write_bytes(path.read_bytes()[:200])
-    with pytest.raises(DatasetError, match="episode_000003.npz: not a readable .npz"):
-        read_episode(cut)
-    arrays = records_to_arrays(make_records(2))
-    arrays["format_version"] = np.array(99)
-    future = tmp_path / "future.npz"
-    np.savez(future, **arrays)
-    with pytest.raises(DatasetError, match=r"format_version 99, this reader understands \[1, 2\]"):
-        read_episode(future)
-    del arrays["partition"]
-    arrays["format_version"] = np.array(2)
-    np.savez(tmp_path / "missing.npz", **arrays)
-    with pytest.raises(DatasetError, match="missing field 'partition'"):
-        read_episode(tmp_path / "missing.npz")
+def test_invalid_records_are_refused_and_named(tmp_path: Path) -> None:
+    with pytest.raises(ImitationError, match="has no depth image"):
+        write_dataset(tmp_path / "a", make_records(2, depth=False))
+    with pytest.raises(ImitationError, match="no records to write"):
+        write_dataset(tmp_path / "b", [])
+    long = make_records(1, k=129)  # more control points than config/collector.yaml's max_ctrl_pts 128
+    with pytest.raises(ImitationError, match="B-spline has 129 control points, more than max_ctrl_pts 128"):
+        write_dataset(tmp_path / "c", long)
+    w = EpisodeWriter(tmp_path / "d", {"round_index": "0"}, fsync=False)
+    assert w.write(0, make_records(2) + long) == 2 and len(w.rejected) == 1
+    w.finalize()
+    m = yaml.safe_load((tmp_path / "d" / "manifest.yaml").read_text())
+    assert m["counts"]["rejected"] == 1 and m["counts"]["written"] == 2
+
+
+def test_foreign_and_missing_datasets_give_clear_answers(tmp_path: Path) -> None:
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    (empty / "collector_manifest.json").write_text("{}")
+    assert read_round(empty) is None and read_records(empty) == []  # a round that recorded nothing
+    cpp = write_synthetic_dataset(tmp_path / "cpp", records=2, width=16, height=12)
+    with pytest.raises(DatasetError, match="not an interactive collector's dataset"):
+        read_round(cpp)
     with pytest.raises(DatasetError, match="not a directory"):
-        list_episodes(tmp_path / "nope")
+        read_round(tmp_path / "nope")
+    (empty / "episode_000001.npz").write_bytes(b"PK")
+    with pytest.raises(
+        DatasetError, match=r"episode_\*.npz files of the interactive collector's former format"
+    ):
+        read_round(empty)
+
+
+def test_a_torn_tail_left_by_a_killed_collector_is_skipped(tmp_path: Path) -> None:
+    w = EpisodeWriter(tmp_path / "r", {"round_index": "1"}, fsync=False)
+    w.write(5, make_records(3))
+    partial = tmp_path / "r" / "shard_000000.qdr.partial"
+    with open(partial, "ab") as fh:  # the collector killed half-way through the next record
+        fh.write(b"\x51\x52\x45\x43" + bytes(100))
+    ds = open_dataset(tmp_path / "r")
+    assert ds.status == "incomplete" and ds.verify().ok
+    assert len(read_records(tmp_path / "r")) == 3
 
 
 def test_records_of_one_episode_may_have_splines_of_different_sizes(tmp_path: Path) -> None:
     recs = make_records(2, k=6) + make_records(1, k=7)
-    path = write_episode(tmp_path, 1, recs)
-    back = read_episode(path)
+    write_dataset(tmp_path / "r", recs)
+    back = read_records(tmp_path / "r")
     assert [r.label.num_ctrl for r in back] == [6, 6, 7]
     for a, b in zip(recs, back, strict=True):
         assert_same(a, b)
-    with np.load(path) as data:
-        assert data["label_ctrl"].shape[1] == 7 and data["label_num_ctrl"].tolist() == [6, 6, 7]
-        arrays = {k: data[k] for k in data.files}
-    arrays["label_num_ctrl"] = np.array([6, 6, 9])
-    np.savez(tmp_path / "bad.npz", **arrays)
-    with pytest.raises(DatasetError, match="record 2: label_num_ctrl 9 with order 3 does not fit"):
-        read_episode(tmp_path / "bad.npz")
-    with pytest.raises(ImitationError, match="no records"):
-        write_episode(tmp_path, 2, [])
-
-
-def test_version_1_files_are_still_read(tmp_path: Path) -> None:
-    recs = make_records(2)
-    arrays = records_to_arrays(recs)
-    for key in ("label_num_ctrl", "odom_stamp_s"):
-        del arrays[key]
-    arrays["format_version"] = np.array(1)
-    np.savez(tmp_path / "v1.npz", **arrays)
-    back = read_episode(tmp_path / "v1.npz")
-    for a, b in zip(recs, back, strict=True):
-        assert_same(a, b)
-        assert np.isnan(b.obs.odom_stamp_s)
 
 
 def test_odometry_stamp_round_trips(tmp_path: Path) -> None:
     recs = make_records(2)
     obs = dataclasses.replace(recs[0].obs, odom_stamp_s=recs[0].obs.stamp_s - 0.004)
     recs[0] = dataclasses.replace(recs[0], obs=obs)
-    back = read_episode(write_episode(tmp_path, 3, recs))
-    assert back[0].obs.odom_stamp_s == obs.odom_stamp_s and np.isnan(back[1].obs.odom_stamp_s)
+    write_dataset(tmp_path / "r", recs)
+    back = read_records(tmp_path / "r")
+    assert back[0].obs.odom_stamp_s == obs.odom_stamp_s
+    assert back[1].obs.odom_stamp_s == recs[1].obs.stamp_s  # unknown: the observation's stamp

@@ -7,7 +7,8 @@ import math
 import pytest
 import torch
 
-from quad_il.imitation.losses import (
+from quad_il.data.partitions import PARTITION_CODES, Partition
+from quad_il.learning.eil import (
     LossInputError,
     eil_bad_loss,
     eil_good_loss,
@@ -15,7 +16,6 @@ from quad_il.imitation.losses import (
     eil_loss,
     mean_sq_ctrl_distance,
 )
-from quad_il.imitation.types import PARTITION_CODES, Partition
 
 GOOD, BAD, INT, DEMO = (
     PARTITION_CODES[p] for p in (Partition.GOOD, Partition.BAD, Partition.INTERVENTION, Partition.DEMO)

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from scipy.spatial.transform import Rotation
 
 from quad_il.collection.episodes import StartGoalConfig
 from quad_il.evaluation.episodes import (
@@ -22,7 +23,6 @@ from quad_il.evaluation.episodes import (
 from quad_il.evaluation.metrics import Box, clearance_lower_bound, path_length, point_box_distances, summarise
 from quad_il.evaluation.report import bench_lines, write_report
 from quad_il.evaluation.run_eval import eval_sim_config, parse_seeds
-from quad_il.inference.geometry import rotation_matrix
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -53,7 +53,7 @@ def _brute_distance(p: np.ndarray, b: Box, n: int = 41) -> float:
     """Distance to a densely sampled solid box (grid of its volume): an upper bound that converges."""
     g = np.linspace(-0.5, 0.5, n)
     local = np.stack(np.meshgrid(g, g, g), -1).reshape(-1, 3) * b.size
-    pts = local @ rotation_matrix(b.q_xyzw).T + b.center
+    pts = local @ Rotation.from_quat(b.q_xyzw).as_matrix().T + b.center
     return float(np.linalg.norm(pts - p, axis=1).min())
 
 
@@ -106,7 +106,7 @@ def test_summaries_rates_means_and_latency_percentiles(tmp_path: Path) -> None:
             "collision",
             min_clearance_m=-0.1,
             decision_ms=[3.0],
-            counts={"collision_in_depth": 4, "recovered": 3, "steered": 5, "turning": 1},
+            counts={"collision_in_depth": 4, "recovered": 3},
         ),
         _result("cpp", 2, "timeout", min_clearance_m=0.8, decision_ms=[4.0]),
         _result("cpp", 3, "takeoff_failed"),
@@ -117,8 +117,6 @@ def test_summaries_rates_means_and_latency_percentiles(tmp_path: Path) -> None:
     assert s.min_clearance_m == -0.1 and s.median_min_clearance_m == pytest.approx(0.4)
     assert s.decision_ms_median == 2.0 and s.decision_ms_p99 == 4.0
     assert s.refusals == 6 and s.recovered == 3  # recovered decisions stay counted as refusals
-    assert s.steered == 5  # steered decisions are accepted ones: not refusals
-    assert s.turning == 1 and s.refusals == 6  # turning decisions are refusals already counted
     with pytest.raises(ValueError, match="no results"):
         summarise("py", rs)
     with pytest.raises(ValueError, match="outcome must be one of"):
@@ -152,8 +150,6 @@ def test_the_report_has_the_table_plots_and_bench_lines(
                     counts={
                         "collision_in_depth": 2,
                         "recovered": 1,
-                        "steered": 7,
-                        "turning": 3,
                         "final_approach": 5,
                         "kept": 2,
                         "committed": 4,
@@ -174,8 +170,8 @@ def test_the_report_has_the_table_plots_and_bench_lines(
     assert "| policy, C++ (LibTorch) | shield | 2 | 0 % [0-66] | 100 % [34-100] |" in text
     assert "Not pinned" in text  # no pin given: the report says so
     assert "not run: quad_il/policy_node.py is not built" in text
-    assert "refusals (recovered) | steered | turning | final approach | kept (committed) |" in text
-    assert text.count("| 4 (2) | 14 | 6 | 10 | 12 (8) |") == 1  # the C++ row, 2 episodes
+    assert "refusals (recovered) | final approach | kept (committed) |" in text
+    assert text.count("| 4 (2) | 10 | 12 (8) |") == 1  # the C++ row, 2 episodes
     for png in ("outcomes.png", "latency.png", "trajectories.png"):
         assert (tmp_path / png).stat().st_size > 0 and f"({png})" in text
     out = capsys.readouterr().out.splitlines()
@@ -217,31 +213,82 @@ def test_bad_policy_and_policy_config_paths_are_named(
     assert f"--policy-config: no such file '{tmp_path / 'nope.yaml'}'" in capsys.readouterr().err
     # A config the nodes would refuse is refused before anything is launched, naming the key.
     bad = tmp_path / "bad.yaml"
-    bad.write_text((ROOT / "config" / "policy.yaml").read_text().replace("turn_clearance_m: 0.8\n", ""))
+    bad.write_text(
+        (ROOT / "config" / "policy.yaml").read_text().replace("final_approach_acc_mps2: 2.0\n", "")
+    )
     assert main([*base, "--policy", str(policy), "--policy-config", str(bad)]) == 1
     err = capsys.readouterr().err
-    assert f"--policy-config: {bad} (tier shield): invalid policy config" in err, err
-    assert "key 'recovery.turn_clearance_m': Field required" in err, err
+    assert (
+        f"--policy-config: {bad} (tier shield): missing required key 'recovery.final_approach_acc_mps2'"
+        in err
+    ), err
     assert not (tmp_path / "out" / "logs").exists()  # nothing was launched
 
 
 def test_a_lockstep_runner_without_the_controllers_consumer_name_is_refused(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from quad_il.evaluation.runner import main
+    from quad_il.evaluation.runner_args import parse_args
 
-    args = [
-        "runner",
-        "--episodes",
-        str(tmp_path / "e.json"),
-        "--controller",
-        "cpp",
-        "--out",
-        str(tmp_path / "o"),
-    ]
-    assert main([*args, "--lockstep-consumer", "eval_runner"]) == 2
+    args = ["--episodes", str(tmp_path / "e.json"), "--controller", "cpp", "--out", str(tmp_path / "o")]
+    with pytest.raises(SystemExit) as exc:
+        parse_args([*args, "--lockstep-consumer", "eval_runner"])
+    assert exc.value.code == 2
     assert "--lockstep-consumer needs --controller-consumer" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+    ok = parse_args([*args, "--lockstep-consumer", "eval_runner", "--controller-consumer", "policy"])
+    assert (ok.episode_timeout_s, ok.vehicle_box_m) == (60.0, "0.25,0.25,0.25")
+
+
+def test_a_flight_is_summarised_from_its_odometry_decisions_and_boxes() -> None:
+    from types import SimpleNamespace
+
+    from quad_il.evaluation.episodes import EpisodeResult
+    from quad_il.evaluation.metrics import boxes_from_markers, summarise_flight
+
+    def marker(ns: str, x: float, action: int = 0) -> SimpleNamespace:
+        pose = SimpleNamespace(
+            position=SimpleNamespace(x=x, y=0.0, z=1.0), orientation=SimpleNamespace(x=0, y=0, z=0, w=1)
+        )
+        return SimpleNamespace(
+            ns=ns, action=action, ADD=0, pose=pose, scale=SimpleNamespace(x=1.0, y=1.0, z=2.0)
+        )
+
+    boxes = boxes_from_markers([marker("boxes", 5.0), marker("goal", 9.0), marker("boxes", 7.0, action=2)])
+    assert len(boxes) == 1 and boxes[0].center[0] == 5.0
+    t = np.arange(0.0, 2.0, 0.005)
+    points = np.stack([10.0 + t, t, np.zeros_like(t), np.ones_like(t)], axis=1)  # 1 m/s along x at z = 1
+    res = EpisodeResult("cpp", 0, 9000, "goal_reached", "goal")
+    summarise_flight(
+        res,
+        10.0,
+        12.0,
+        points,
+        boxes,
+        np.full(3, 0.25),
+        [1.23456, 2.0],
+        [9.0],
+        counts={"accepted": 2},
+        tracker_rejections=1,
+    )
+    assert res.time_to_goal_s == pytest.approx(2.0) and res.flight_time_s == pytest.approx(2.0)
+    assert res.path_length_m == pytest.approx(1.995, abs=1e-9)
+    assert res.decisions == 2 and res.decision_ms == [1.2346, 2.0]  # the policy's, not the expert's
+    assert (res.counts, res.tracker_rejections) == ({"accepted": 2}, 1)
+    assert len(res.trajectory) == 20  # 10 Hz over 2 s
+    # Nearest box face at x = 4.5 from the end at x = 1.995: minus the vehicle's circumscribed radius.
+    assert res.min_clearance_m == pytest.approx(4.5 - 1.995 - math.sqrt(3) * 0.125, abs=1e-6)
+    expert = summarise_flight(
+        EpisodeResult("expert", 0, 1, "collision", "box"),
+        0.0,
+        1.0,
+        points[:1],
+        boxes,
+        np.full(3, 0.25),
+        [],
+        [3.5, 4.0],
+    )
+    assert math.isnan(expert.time_to_goal_s) and expert.decision_ms == [3.5, 4.0] and expert.counts == {}
 
 
 def _fake_relaunch_eval(

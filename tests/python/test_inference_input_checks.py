@@ -1,5 +1,5 @@
-"""The policy nodes' input checks (quad_il.inference.input_checks; the C++ quad_policy/input_checks.h returns
-the same texts, which tests/rostest/policy_bad_input.test compares node against node)."""
+"""The policy nodes' input checks (quad_policy/input_checks.h, bound as quad_il.inference.core: both nodes
+return these texts, which tests/rostest/policy_bad_input.test compares node against node)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from quad_il.inference.input_checks import depth_layout_problem, depth_size_problem, state_problem
+from quad_il.inference.core import depth_layout_problem, depth_size_problem, state_problem
 
 W, H = 80, 60
 

@@ -10,12 +10,12 @@ import pytest
 import torch
 from test_imitation_dataset import make_records
 
+from quad_il.data.partitions import IL_PARTITION_KEY, PARTITION_CODES, Partition
 from quad_il.imitation.convert import convert, parse_partitions, records_to_npz_arrays
-from quad_il.imitation.dataset import write_episode
-from quad_il.imitation.losses import eil_loss
-from quad_il.imitation.types import IL_PARTITION_KEY, PARTITION_CODES, Partition
+from quad_il.imitation.dataset import write_dataset
 from quad_il.learning.config import ConfigError, load_config
 from quad_il.learning.dataset import DatasetError, concatenate, prepare_arrays, read_npz
+from quad_il.learning.eil import eil_loss
 from quad_il.learning.losses import eil_per_sample
 from quad_il.learning.preprocessing import DepthPreprocessor
 from quad_il.learning.synthetic import make_synthetic_arrays
@@ -50,7 +50,7 @@ def test_per_row_objective_matches_eil_loss_and_hand_values() -> None:
 
 
 def test_converter_writes_il_partition_and_the_reader_keeps_it(tmp_path: Path) -> None:
-    write_episode(tmp_path / "r0", 1, make_records(8))  # demo, intervention, good, bad, ...
+    write_dataset(tmp_path / "r0", make_records(8))  # demo, intervention, good, bad, ...
     out, n, _ = convert(
         [tmp_path / "r0"], tmp_path / "d.npz", partitions=parse_partitions("demo,intervention,good,bad")
     )

@@ -304,10 +304,13 @@ def test_uniform_cubic_basis_reproduces_polynomials_and_matches_de_boor() -> Non
     # Greville abscissae of knots (i - 3) dt: control points (i - 1) dt reproduce the line p(t) = t (dt = 1).
     greville = torch.arange(10, dtype=torch.float64) - 1.0
     torch.testing.assert_close(a @ greville, torch.linspace(0, 7, 57, dtype=torch.float64))
-    bspline = pytest.importorskip("quad_il.data.bspline")  # the collector's de Boor (issue 6), if present
-    knots = bspline.uniform_knots(10, 3, 0.25)
-    ref = bspline.basis_matrix(knots, 10, 3, np.linspace(0.0, 7 * 0.25, 57))
-    np.testing.assert_allclose(a.numpy(), ref, atol=1e-12)
+    # Hand-computed rows (57 samples over 7 segments: 8 per segment): at the domain start the basis is
+    # (1, 4, 1) / 6 on the first three control points; half-way through segment 0, (1, 23, 23, 1) / 48.
+    torch.testing.assert_close(a[0, :4], torch.tensor([1.0, 4.0, 1.0, 0.0], dtype=torch.float64) / 6.0)
+    torch.testing.assert_close(a[4, :4], torch.tensor([1.0, 23.0, 23.0, 1.0], dtype=torch.float64) / 48.0)
+    assert a[4, 4:].abs().max() == 0.0
+    # ... and at the domain end the last three: (1, 4, 1) / 6.
+    torch.testing.assert_close(a[-1, -4:], torch.tensor([0.0, 1.0, 4.0, 1.0], dtype=torch.float64) / 6.0)
 
 
 def test_polynomial_codec_recovers_the_coefficients_of_a_cubic_trajectory() -> None:

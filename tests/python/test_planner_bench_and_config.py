@@ -45,7 +45,7 @@ def test_names_file_lists_exactly_the_issue_names() -> None:
 
 
 def test_the_benchmark_source_prints_every_name() -> None:
-    src = (ROOT / "src/fast_planner/src/bench/planner_bench.cpp").read_text()
+    src = (ROOT / "src/quad_bench/tools/planner_bench.cpp").read_text()
     for name in ISSUE_NAMES:
         stem = name.removeprefix("planner_")
         # Timing names are built as "planner_" + {frontend, opt, total} + "_ms_" + statistic.

@@ -27,6 +27,30 @@ def test_second_run_changes_nothing_and_says_so():
     assert "apt: all" in second.stdout
     assert "venv: .venv present" in second.stdout
     assert "pip: requirements unchanged" in second.stdout
+    assert "pkg: quad_il installed (editable" in second.stdout
+
+
+def test_the_venv_imports_quad_il_from_this_checkout_without_any_path_setup():
+    # -I ignores PYTHONPATH (which scripts/env.sh and the devel space set): the venv's editable install alone.
+    venv_python = ROOT / ".venv" / "bin" / "python"
+    proc = subprocess.run(
+        [str(venv_python), "-I", "-c", "import quad_il; print(quad_il.__file__)"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd="/",
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == str(ROOT / "src" / "quad_il" / "src" / "quad_il" / "__init__.py")
+
+
+def test_training_only_scripts_and_the_manager_node_do_not_patch_sys_path():
+    scripts = [
+        *sorted((ROOT / "training_only").glob("*.py")),
+        ROOT / "src/quad_il/nodes/imitation_learning_manager.py",
+    ]
+    for path in scripts:
+        assert "sys.path" not in path.read_text(), path
 
 
 def test_unknown_apt_package_is_named():

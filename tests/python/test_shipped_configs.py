@@ -4,7 +4,9 @@ The files are every *.yaml / *.yml that git tracks or would track (`git ls-files
 --exclude-standard`), so a newly added config is covered at once; a file no rule below names fails with
 "no loader for <file>". Python configs load through their pydantic loaders; C++ configs through
 fast_planner's `config_check KIND FILE`, which calls the same StrictYaml loaders as the nodes. A manager
-config's references to other configs (`{config_dir}/...yaml` in its commands) must exist too.
+config's references to other configs (`{config_dir}/...yaml` in its commands) must exist too. An overlay
+(`overlay_of: BASE`, quad_il.tools.config_overlay) is checked merged over its base, as its users load it (the
+Python loaders merge it themselves; a C++ node is given the merged file by its launch file).
 """
 
 from __future__ import annotations
@@ -19,9 +21,11 @@ import pytest
 
 from quad_il.collection.episodes import load_collect_config
 from quad_il.evaluation.sets import load_eval_sets
+from quad_il.imitation.collector_config import load_collector_node_config
 from quad_il.inference.config import load_policy_config
 from quad_il.learning.config import load_config as load_train_config
 from quad_il.manager.config import load_config as load_manager_config
+from quad_il.tools import config_overlay
 from quad_il.tools.binaries import find_binary
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -39,15 +43,18 @@ def shipped_yaml_files() -> list[str]:
     return sorted(f for f in set(out) if (ROOT / f).is_file())
 
 
-def cpp_loader(kind: str) -> Callable[[Path], None]:
+def cpp_loader(kind: str, out_dir: Path | None = None) -> Callable[[Path], None]:
+    """config_check KIND on the file, or on an overlay's merged config (written to out_dir)."""
+
     def load(path: Path) -> None:
+        full = config_overlay.resolve(path, out_dir)
         proc = subprocess.run(
-            [str(find_binary("fast_planner", "config_check")), kind, str(path)],
+            [str(find_binary("quad_bench", "config_check")), kind, str(full)],
             capture_output=True,
             text=True,
         )
         assert proc.returncode == 0, f"{path} does not load as a {kind} config: {proc.stderr.strip()}"
-        assert proc.stdout.strip() == f"ok: {kind} {path}"
+        assert proc.stdout.strip() == f"ok: {kind} {full}"
 
     return load
 
@@ -76,10 +83,10 @@ RULES: list[tuple[str, str, Callable[[Path], None]]] = [
     ("config/il/episodes*.yaml", "collect", load_collect_config),
     ("tests/rostest/collect_*.yaml", "collect", load_collect_config),
     ("config/collector.yaml", "c++ collector", cpp_loader("collector")),
-    ("src/cpp_data_collector/config/*.yaml", "c++ collector", cpp_loader("collector")),
     ("config/eval_sets.yaml", "eval sets", load_eval_sets),
+    ("config/imitation_collector.yaml", "collector node", lambda p: load_collector_node_config(p, {})),
     ("config/il_manager.yaml", "manager", load_manager),
-    ("config/il/planner*.yaml", "c++ planner", cpp_loader("planner")),
+    ("config/il/planner*.yaml", "c++ planner (overlay of config/planner.yaml)", cpp_loader("planner")),
     ("config/il/*.yaml", "manager", load_manager),
     ("config/planner.yaml", "c++ planner", cpp_loader("planner")),
     ("config/policy*.yaml", "policy", load_policy_config),
@@ -147,7 +154,7 @@ def test_the_cpp_loader_refuses_a_broken_shipped_file(
     bad = tmp_path / Path(rel).name
     bad.write_text(text.replace(edit[0], edit[1], 1))
     proc = subprocess.run(
-        [str(find_binary("fast_planner", "config_check")), kind, str(bad)], capture_output=True, text=True
+        [str(find_binary("quad_bench", "config_check")), kind, str(bad)], capture_output=True, text=True
     )
     assert proc.returncode == 1, proc.stdout
     assert str(bad) in proc.stderr and needle in proc.stderr, proc.stderr
@@ -168,10 +175,10 @@ def test_an_unknown_key_in_a_shipped_sim_config_is_refused(tmp_path: Path) -> No
 
 
 def test_a_manager_config_referring_to_a_missing_config_is_refused(tmp_path: Path) -> None:
-    text = (ROOT / "config" / "il" / "dagger_fa.yaml").read_text()
+    text = (ROOT / "config" / "il" / "dagger_cmp.yaml").read_text()
     assert "{config_dir}/../train.yaml" in text
-    bad = tmp_path / "il" / "dagger_fa.yaml"
+    bad = tmp_path / "il" / "dagger_cmp.yaml"
     bad.parent.mkdir()
     bad.write_text(text)  # tmp_path has no train.yaml beside il/
-    with pytest.raises(AssertionError, match=r"refers to \.\./train\.yaml"):
+    with pytest.raises(AssertionError, match=r"refers to \.\./(policy_plain|train)\.yaml, which does not"):
         load_manager(bad)

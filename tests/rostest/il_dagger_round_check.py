@@ -2,7 +2,7 @@
 """rostest node of il_dagger_round.test: waits for the imitation collector's manifest (written when its two
 episodes are done) and checks one DAgger round with beta = 0: the learner flew, the expert labelled exactly
 the frames the learner saw (label start time = observation stamp), every record is a DEMO labelled by the
-expert, the episode files are complete and convert to the trainer's npz contract."""
+expert, the round's dataset is complete and converts to the trainer's npz contract."""
 
 from __future__ import annotations
 

@@ -4,7 +4,7 @@ round with two experts in the loop (the simulator waited for both experts' ackno
 paired both experts' plans with each frame the learner saw, else the learner raises): the gate handed control
 to an expert, every record is an INTERVENTION labelled by expert_a or expert_b from exactly its frame, with a
 finite score and a clearance above the safety threshold, the collector received the worlds' voxel maps, and
-the episode files are complete and convert to the trainer's npz contract."""
+the round's dataset is complete and converts to the trainer's npz contract."""
 
 from __future__ import annotations
 

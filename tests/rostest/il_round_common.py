@@ -1,6 +1,7 @@
 """Shared by the interactive-round rostest checks (il_dagger_round_check.py, il_mega_round_check.py): wait for
-the collector's manifest, and check that the round's episode files are complete and convert to the trainer's
-npz contract. (rostest runs a check script with its own directory first on sys.path.)"""
+the collector's manifest, and check that the round's dataset (shards + manifest, the one demonstration
+format) is complete, verifies, and converts to the trainer's npz contract. (rostest runs a check script with
+its own directory first on sys.path.)"""
 
 from __future__ import annotations
 
@@ -13,8 +14,9 @@ from typing import Any
 import numpy as np
 import rospy
 
-from quad_il.imitation.convert import collect_records, records_to_npz_arrays
-from quad_il.imitation.dataset import list_episodes, read_episode
+from quad_il.data import open_dataset
+from quad_il.imitation.convert import select_records, shard_records_to_npz_arrays
+from quad_il.imitation.dataset import episodes, read_records
 from quad_il.imitation.types import Record
 
 
@@ -34,15 +36,18 @@ def wait_for_manifest(
 
 
 def episode_records(test: unittest.TestCase, data: Path) -> list[list[Record]]:
-    """The records of each episode file, once every file is complete (no partial file left)."""
-    files, partial = list_episodes(data)
-    test.assertEqual(partial, [])
-    test.assertGreaterEqual(len(files), 1)
-    return [read_episode(f) for f in files]
+    """The records of each episode, once the dataset is finalised and verifies without error."""
+    ds = open_dataset(data)
+    test.assertEqual(ds.status, "complete")
+    report = ds.verify()
+    test.assertTrue(report.ok and not report.warnings, report.format())
+    groups = episodes(read_records(data))
+    test.assertGreaterEqual(len(groups), 1)
+    return groups
 
 
 def check_converts(test: unittest.TestCase, data: Path, n_records: int) -> None:
-    records, _ = collect_records([data])
-    arrays = records_to_npz_arrays(records)
+    records, rounds, _ = select_records([data])
+    arrays = shard_records_to_npz_arrays(records, rounds)
     test.assertEqual(len(arrays), n_records)
     test.assertTrue(np.isfinite(arrays.bspline_ctrl_world).all())

@@ -9,7 +9,7 @@ flies an episode (simulator in lockstep + tracker + the node). Two kinds (~polic
   reached (EpisodeStatus.reached_goal, the runner's goal_reached). A broken wrapper, tier config or wiring
   fails it.
 - `trained`: a small policy trained here on synthetic data (a few epochs: it need not fly well), for the
-  refusal paths (~max_vel_mps, ~turn_after_stops). The outcome is not judged; the wiring is.
+  refusal paths (~max_vel_mps). The outcome is not judged; the wiring is.
 
 Both check the wiring: decisions are made for the depth frames, B-splines are produced in the expected layout
 and sent, the tracker handles them or the safety layer refuses with counted, published reasons, every frame is
@@ -17,7 +17,7 @@ acknowledged (no lockstep timeouts), and the node is still alive at the end."""
 
 from __future__ import annotations
 
-import math
+import json
 import os
 import shutil
 import tempfile
@@ -33,18 +33,18 @@ import rostest
 import yaml
 from actionlib_msgs.msg import GoalStatusArray
 from geometry_msgs.msg import Point, Pose, Quaternion
-from nav_msgs.msg import Odometry
 
 from quad_il.collection.episodes import EpisodeSpec
 from quad_il.evaluation.episodes import GROUND_Z_M
 from quad_il.evaluation.runner import EpisodeRunner
 from quad_il.evaluation.tiers import write_tier_config
-from quad_il.inference.meta import parse_policy_meta
+from quad_il.inference.core import parse_policy_meta
 from quad_il.inference.random_policy import export_goal_line_policy
 from quad_il.learning.config import load_config
 from quad_il.learning.export import load_exported
 from quad_il.learning.synthetic import write_synthetic_npz
 from quad_il.learning.trainer import Trainer
+from quad_il.tools import config_overlay
 from quad_msgs.msg import Bspline, EpisodeStatus, PolicyDecision, SimStats
 from quad_msgs.srv import ResetEpisode
 
@@ -59,15 +59,13 @@ VERDICTS = {
 EVENTS = {
     "tracker_not_connected",
     "hover_failed",
-    "turning",
-    "steered",
     "recovered",
     "final_approach",
     "kept",
     "committed",
 }
 # Actions of a decided frame that send a trajectory (the others: keep, hover).
-SENDING = {"policy", "stop", "turn", "recovery", "steer", "final_approach"}
+SENDING = {"policy", "stop", "recovery", "final_approach"}
 # The goal-line episode: start in front of the gate of config/worlds/gate.yaml (pillars at x = 5 m,
 # y = +-1.5 m, a lintel from z = 3 m; a tilted block from x = 8.9 m), the goal behind it.
 GATE_EPISODE = EpisodeSpec(0, 0, (0.0, 0.0, 1.5), 0.0, (7.5, 0.0, 1.5))
@@ -138,7 +136,7 @@ def train_small_policy(out_dir: Path) -> Path:
 
 
 class Recorder:
-    def __init__(self, record_heading: bool = False) -> None:
+    def __init__(self) -> None:
         self.lock = threading.Lock()
         self.decisions: list[PolicyDecision] = []
         self.bsplines: dict[int, Bspline] = {}
@@ -148,15 +146,6 @@ class Recorder:
         rospy.Subscriber("planner/bspline", Bspline, self._on_bspline, queue_size=1000)
         rospy.Subscriber("tracker/track_bspline/status", GoalStatusArray, self._on_status, queue_size=100)
         rospy.Subscriber("sim/stats", SimStats, self._on_stats, queue_size=10)
-        self.yaw: list[tuple[float, float]] = []  # (stamp, heading) of every odometry message
-        if record_heading:  # 200 Hz: only when the test needs it (it loads this process)
-            rospy.Subscriber("odom", Odometry, self._on_odom, queue_size=1000)
-
-    def _on_odom(self, m: Odometry) -> None:
-        q = m.pose.pose.orientation
-        yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
-        with self.lock:
-            self.yaw.append((m.header.stamp.to_sec(), yaw))
 
     def _on_decision(self, m: PolicyDecision) -> None:
         with self.lock:
@@ -190,7 +179,7 @@ class InferFlight(unittest.TestCase):
             policy_path = train_small_policy(work)
         _, meta = load_exported(policy_path)
         self.assertEqual(
-            parse_policy_meta(meta, str(policy_path)).output_frame,
+            parse_policy_meta(json.dumps(meta), str(policy_path)).output_frame,
             "world" if kind == "goal_line" else "local",
         )
 
@@ -198,8 +187,7 @@ class InferFlight(unittest.TestCase):
         pkg, node_type = {"cpp": ("quad_policy", "policy_node"), "py": ("quad_il", "policy_node.py")}[
             controller
         ]
-        turn_after = int(rospy.get_param("~turn_after_stops", 0))
-        rec = Recorder(record_heading=turn_after > 0)
+        rec = Recorder()
         # ~max_vel_mps (optional) overrides the safety layer's speed limit: a low one makes it refuse every
         # proposal, so the stopping trajectories go to the tracker instead.
         # ~tier (optional): the evaluation tier's complete node config, written from ~policy_config.
@@ -207,15 +195,10 @@ class InferFlight(unittest.TestCase):
         config_path = Path(rospy.get_param("~policy_config"))
         if tier:
             config_path = write_tier_config(config_path, tier, work / f"policy_{tier}.yaml")
-        config = yaml.safe_load(config_path.read_text())
+        config = config_overlay.load_tree(config_path)  # an overlay merged over its base
         max_vel = rospy.get_param("~max_vel_mps", None)
         if max_vel is not None:
             config["safety"]["max_vel_mps"] = float(max_vel)
-        # ~turn_after_stops (optional): turning in place from that many stops in a row on, at 90 deg/s,
-        # without a back-off (every proposal refused: the vehicle turns on the spot for the rest of the
-        # episode).
-        if turn_after:
-            config["recovery"].update(turn_after_stops=turn_after, turn_rate_dps=90.0, turn_clearance_m=0.0)
         (work / "policy.yaml").write_text(yaml.safe_dump(config))
         rospy.set_param("/policy_node/config", str(work / "policy.yaml"))
         rospy.set_param("/policy_node/policy_file", str(policy_path))
@@ -269,7 +252,6 @@ class InferFlight(unittest.TestCase):
             with rec.lock:
                 decisions = list(rec.decisions)
                 bsplines = dict(rec.bsplines)
-                yaw = list(rec.yaw)
                 goal_ids = set(rec.tracker_goal_ids)
                 stats = rec.stats
         finally:
@@ -289,7 +271,7 @@ class InferFlight(unittest.TestCase):
         for d in decided:
             self.assertIn(d.verdict, VERDICTS)
             self.assertTrue(d.reason.startswith(d.verdict), d.reason)
-            if kind == "trained" and not turn_after:
+            if kind == "trained":
                 self.assertEqual(d.action, "policy" if d.accepted else "stop")  # refusal.action: stop
             self.assertEqual(d.traj_id > 0, d.action in SENDING, f"{d.action}: {d.reason}")
             self.assertGreater(d.decision_ms, 0.0)
@@ -328,31 +310,6 @@ class InferFlight(unittest.TestCase):
         self.assertLessEqual(last.tracker_rejections, len(decided))
         if max_vel is not None and float(max_vel) < 0.5:
             self.assertTrue(all(d.verdict == "velocity_limit" for d in decided))
-        if turn_after:
-            # Every proposal is refused: the first turn_after - 1 stops only stop, every later one turns, its
-            # B-spline carries the heading on the position's knots, and the vehicle turned on the spot.
-            self.assertTrue(all(not d.accepted for d in decided))
-            self.assertEqual(events.get("turning"), len(decided) - turn_after + 1, events)
-            actions = [d.action for d in decided]
-            self.assertEqual(
-                actions, ["stop"] * (turn_after - 1) + ["turn"] * (len(decided) - turn_after + 1)
-            )
-            for d in decided:
-                b = bsplines[d.traj_id]
-                if d.action == "turn":
-                    self.assertIn("turning in place at 90 deg/s, backing off 0.00 m", d.reason)
-                    self.assertEqual(len(b.yaw_pts), 4)
-                    self.assertAlmostEqual(b.yaw_dt, b.knots[4] - b.knots[3], places=9)
-                    self.assertAlmostEqual(
-                        b.yaw_pts[2] - b.yaw_pts[1], math.radians(90.0) * b.yaw_dt, places=9
-                    )
-                else:
-                    self.assertEqual((len(b.yaw_pts), b.yaw_dt), (0, 0.0))
-            t0 = decided[turn_after - 1].header.stamp.to_sec()
-            headings = np.unwrap([h for t, h in yaw if t >= t0])
-            turned = float(np.degrees(np.ptp(headings)))
-            rospy.loginfo(f"infer_flight ({controller}): turned {turned:.0f} deg in place")
-            self.assertGreater(turned, 90.0)
         # Lockstep: the simulator never waited in vain for an acknowledgement.
         self.assertIsNotNone(stats)
         self.assertEqual(stats.lockstep_ack_timeouts, 0)

@@ -104,6 +104,9 @@ class InferNodeParity(unittest.TestCase):
         # The repository config with a replanning rate: frames come 0.1 s apart, every other one is decided.
         cfg = yaml.safe_load(Path(rospy.get_param("~policy_config")).read_text())
         cfg["replan_rate_hz"] = 5.0
+        # A frame waits for its own odometry (published just before it, on another topic) as long as it
+        # takes: the guard only.
+        cfg["odom_wait_s"] = GUARD_S
         config_path = work / "policy.yaml"
         config_path.write_text(yaml.safe_dump(cfg))
         outputs = {ns: NodeOutputs(ns) for ns in NAMESPACES}
@@ -120,9 +123,6 @@ class InferNodeParity(unittest.TestCase):
             "config": str(config_path),
             "policy_file": str(policy),
             "send_to_tracker": False,
-            # A frame waits for its own odometry (published just before it, on another topic) as long as it
-            # takes: the guard only.
-            "odom_wait_s": GUARD_S,
         }
         with policy_nodes(params) as procs:
             self._feed_and_compare(outputs, pubs)

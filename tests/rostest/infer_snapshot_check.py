@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
-"""rostest node: the snapshot command (python -m quad_il.tools.snapshot) renders the running simulator's world
-with rviz under Xvfb and writes non-empty PNGs that show the world: compared with a blank frame of the same
-command (--blank: every display off), most pixels differ and the world's boxes (bluish markers) are visible;
-the top-down view with the voxel map works too."""
+"""rostest node: the snapshot command (python -m quad_il.evaluation.snapshot) renders the running simulator's
+world with rviz under Xvfb and writes non-empty PNGs that show the world: compared with a blank frame of the
+same command (--blank: every display off), most pixels differ and the world's boxes (bluish markers) are
+visible; the top-down view with the voxel map works too."""
 
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ def snapshot(out: Path, *extra: str, settle_s: float = 3.0) -> Path:
     cmd = [
         sys.executable,
         "-m",
-        "quad_il.tools.snapshot",
+        "quad_il.evaluation.snapshot",
         "--out",
         str(out),
         "--size",

@@ -168,13 +168,14 @@ class PolicyBadInput(unittest.TestCase):
         policy = export_goal_line_policy(work / "policy.ts")
         io = {ns: NodeIO(ns) for ns in NAMESPACES}
         tf = broadcast_camera_mount()
-        params = {
-            "config": rospy.get_param("~policy_config"),
-            "policy_file": str(policy),
-            # Wait on conditions: a frame waits for its odometry, the tracker's answer comes (guards only).
-            "odom_wait_s": GUARD_S,
-            "tracker_accept_timeout_s": GUARD_S,
-        }
+        # Wait on conditions: a frame waits for its odometry, the tracker's answer comes (guards only). An
+        # overlay of the node config (both loaders merge it).
+        config = work / "policy.yaml"
+        config.write_text(
+            f"overlay_of: {rospy.get_param('~policy_config')}\n"
+            f"odom_wait_s: {GUARD_S}\ntracker_accept_timeout_s: {GUARD_S}\n"
+        )
+        params = {"config": str(config), "policy_file": str(policy)}
         with policy_nodes(params) as procs:
             self._run(io, tf)
             for p in procs:

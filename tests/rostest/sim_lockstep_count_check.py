@@ -37,7 +37,8 @@ class RunnerCountTest(unittest.TestCase):
             path = Path(tmp) / "sim.yaml"
             path.write_text(yaml.safe_dump(cfg))
             sim = subprocess.Popen(
-                ["rosrun", "quad_sim", "quad_sim_node", f"_config:={path}", "__name:=quad_sim"],
+                ["rosrun", "quad_sim", "quad_sim_node", f"_config:={path}", "_world_seed:=-1"]
+                + ["__name:=quad_sim"],
                 stdout=subprocess.DEVNULL,
                 stderr=subprocess.STDOUT,
             )

@@ -119,17 +119,19 @@ struct Slot {
 }  // namespace
 
 std::string ValidatePlanRecord(const PlanRecord& r, const WriterConfig& config) {
-  const DepthImageView& d = r.depth;
-  if (d.data_m == nullptr) return "depth image has no data";
-  if (d.width != config.image_width || d.height != config.image_height) {
+  const quad_core::DepthImageView& d = r.depth;
+  if (d.data == nullptr) return "depth image has no data";
+  if (d.width < 0 || d.height < 0 || static_cast<uint32_t>(d.width) != config.image_width ||
+      static_cast<uint32_t>(d.height) != config.image_height) {
     return "depth image is " + std::to_string(d.width) + "x" + std::to_string(d.height) +
            ", the dataset's image size is " + std::to_string(config.image_width) + "x" +
            std::to_string(config.image_height);
   }
-  if (d.row_stride_bytes != 0 && d.row_stride_bytes < d.width * sizeof(float)) {
-    return "depth row stride " + std::to_string(d.row_stride_bytes) + " is shorter than a row";
+  if (d.row_stride < static_cast<size_t>(d.width)) {
+    return "depth row stride " + std::to_string(d.row_stride) + " is shorter than a row of " +
+           std::to_string(d.width);
   }
-  if (!std::isfinite(d.stamp_s)) return "depth stamp is not finite";
+  if (!std::isfinite(r.depth_stamp_s)) return "depth stamp is not finite";
   if (!std::isfinite(r.sim_time_s)) return "sim_time_s is not finite";
   const OdometrySample& o = r.odom;
   if (!std::isfinite(o.stamp_s) || !AllFinite(o.p_world_body.data(), 3) || !AllFinite(o.v_world.data(), 3) ||
@@ -487,7 +489,7 @@ struct DatasetWriter::Impl {
     h.episode_id = r.episode_id + episode_id_offset;
     h.world_seed = r.world_seed;
     h.sim_time_s = r.sim_time_s;
-    h.depth_stamp_s = r.depth.stamp_s;
+    h.depth_stamp_s = r.depth_stamp_s;
     h.odom_stamp_s = r.odom.stamp_s;
     std::copy(r.odom.p_world_body.begin(), r.odom.p_world_body.end(), h.p_world_body);
     std::copy(r.odom.v_world.begin(), r.odom.v_world.end(), h.v_world);
@@ -518,14 +520,13 @@ struct DatasetWriter::Impl {
       s->ctrl_xyz[3 * i + 2] = b.ctrl_pts_world[i][2];
     }
     std::copy(b.yaw_pts.begin(), b.yaw_pts.end(), s->yaw.begin());
-    const DepthImageView& d = r.depth;
-    const size_t row_bytes = d.width * sizeof(float);
-    if (d.row_stride_bytes == 0 || d.row_stride_bytes == row_bytes) {
-      StreamCopy(s->depth_m.data(), d.data_m, row_bytes * d.height);
+    const quad_core::DepthImageView& d = r.depth;
+    const size_t row_bytes = static_cast<size_t>(d.width) * sizeof(float);
+    if (d.row_stride == static_cast<size_t>(d.width)) {
+      StreamCopy(s->depth_m.data(), d.data, row_bytes * d.height);
     } else {
-      const auto* src = reinterpret_cast<const uint8_t*>(d.data_m);
-      for (uint32_t row = 0; row < d.height; ++row) {
-        StreamCopy(s->depth_m.data() + static_cast<size_t>(row) * d.width, src + row * d.row_stride_bytes,
+      for (int row = 0; row < d.height; ++row) {
+        StreamCopy(s->depth_m.data() + static_cast<size_t>(row) * d.width, d.data + row * d.row_stride,
                    row_bytes);
       }
     }

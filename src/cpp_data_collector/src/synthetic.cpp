@@ -234,11 +234,11 @@ void SyntheticGenerator::Generate(uint64_t index, SyntheticRecord* out, DepthMod
       out->depth_m[static_cast<size_t>(v) * W + u] = depth;
     }
   }
-  r.depth.data_m = out->depth_m.data();
+  r.depth.data = out->depth_m.data();
   r.depth.width = W;
   r.depth.height = H;
-  r.depth.row_stride_bytes = 0;
-  r.depth.stamp_s = episode_start_s + depth_t;
+  r.depth.row_stride = static_cast<size_t>(W);
+  r.depth_stamp_s = episode_start_s + depth_t;
 
   // B-spline: Fast-Planner's uniform cubic parametrisation, knots (i - 3) * dt so knots[3] = 0 is flown at
   // start_time; control points near the path ahead, bent by a smooth lateral bump (an avoided obstacle).

@@ -43,42 +43,42 @@ void WriterConfig::Validate() const {
   }
 }
 
-WriterConfig LoadWriterConfig(quad_common::StrictYaml* yaml, const std::string& prefix) {
+WriterConfig LoadWriterConfig(quad_core::StrictYaml* yaml, const std::string& prefix) {
   const std::string p = prefix.empty() ? "" : prefix + ".";
   WriterConfig c;
   c.output_dir = yaml->Get<std::string>(p + "output_dir");
-  c.shard_size_mb = yaml->GetOr<double>(p + "shard_size_mb", c.shard_size_mb, quad_common::Positive());
+  c.shard_size_mb = yaml->GetOr<double>(p + "shard_size_mb", c.shard_size_mb, quad_core::Positive());
   c.queue_capacity = static_cast<uint32_t>(yaml->GetOr<int>(
-      p + "queue_capacity", static_cast<int>(c.queue_capacity), quad_common::InRange(1, 100000)));
+      p + "queue_capacity", static_cast<int>(c.queue_capacity), quad_core::InRange(1, 100000)));
   const std::string policy = yaml->GetOr<std::string>(p + "full_queue_policy", "block");
   try {
     c.full_queue_policy = ParseFullQueuePolicy(policy);
   } catch (const std::invalid_argument& e) {
-    throw quad_common::ConfigError(yaml->source() + ": key '" + p + "full_queue_policy' has value '" +
-                                   policy + "' which is not one of: block, drop");
+    throw quad_core::ConfigError(yaml->source() + ": key '" + p + "full_queue_policy' has value '" + policy +
+                                 "' which is not one of: block, drop");
   }
-  c.image_width = static_cast<uint32_t>(yaml->Get<int>(p + "image_width", quad_common::InRange(1, 16384)));
-  c.image_height = static_cast<uint32_t>(yaml->Get<int>(p + "image_height", quad_common::InRange(1, 16384)));
-  c.max_ctrl_pts = static_cast<uint32_t>(yaml->GetOr<int>(
-      p + "max_ctrl_pts", static_cast<int>(c.max_ctrl_pts), quad_common::InRange(4, 100000)));
+  c.image_width = static_cast<uint32_t>(yaml->Get<int>(p + "image_width", quad_core::InRange(1, 16384)));
+  c.image_height = static_cast<uint32_t>(yaml->Get<int>(p + "image_height", quad_core::InRange(1, 16384)));
+  c.max_ctrl_pts = static_cast<uint32_t>(
+      yaml->GetOr<int>(p + "max_ctrl_pts", static_cast<int>(c.max_ctrl_pts), quad_core::InRange(4, 100000)));
   c.max_yaw_pts = static_cast<uint32_t>(
-      yaml->GetOr<int>(p + "max_yaw_pts", static_cast<int>(c.max_yaw_pts), quad_common::InRange(0, 100000)));
+      yaml->GetOr<int>(p + "max_yaw_pts", static_cast<int>(c.max_yaw_pts), quad_core::InRange(0, 100000)));
   c.fsync = yaml->GetOr<bool>(p + "fsync", c.fsync);
   c.software_commit = yaml->GetOr<std::string>(p + "software_commit", c.software_commit);
-  c.camera_fx_px = yaml->GetOr<double>(p + "camera.fx_px", 0.0, quad_common::NonNegative());
-  c.camera_fy_px = yaml->GetOr<double>(p + "camera.fy_px", 0.0, quad_common::NonNegative());
-  c.camera_cx_px = yaml->GetOr<double>(p + "camera.cx_px", 0.0, quad_common::NonNegative());
-  c.camera_cy_px = yaml->GetOr<double>(p + "camera.cy_px", 0.0, quad_common::NonNegative());
+  c.camera_fx_px = yaml->GetOr<double>(p + "camera.fx_px", 0.0, quad_core::NonNegative());
+  c.camera_fy_px = yaml->GetOr<double>(p + "camera.fy_px", 0.0, quad_core::NonNegative());
+  c.camera_cx_px = yaml->GetOr<double>(p + "camera.cx_px", 0.0, quad_core::NonNegative());
+  c.camera_cy_px = yaml->GetOr<double>(p + "camera.cy_px", 0.0, quad_core::NonNegative());
   try {
     c.Validate();
   } catch (const std::invalid_argument& e) {
-    throw quad_common::ConfigError(yaml->source() + ": " + e.what());
+    throw quad_core::ConfigError(yaml->source() + ": " + e.what());
   }
   return c;
 }
 
 WriterConfig LoadWriterConfigFile(const std::string& path) {
-  quad_common::StrictYaml yaml = quad_common::StrictYaml::FromFile(path);
+  quad_core::StrictYaml yaml = quad_core::StrictYaml::FromFile(path);
   WriterConfig c = LoadWriterConfig(&yaml, "");
   yaml.CheckAllKeysUsed();
   return c;

@@ -55,7 +55,7 @@ void ExpectRecordEquals(const cdc::PlanRecord& in, const cdc::DecodedRecord& out
   EXPECT_EQ(h.episode_id, in.episode_id);
   EXPECT_EQ(h.world_seed, in.world_seed);
   EXPECT_EQ(h.sim_time_s, in.sim_time_s);
-  EXPECT_EQ(h.depth_stamp_s, in.depth.stamp_s);
+  EXPECT_EQ(h.depth_stamp_s, in.depth_stamp_s);
   EXPECT_EQ(h.odom_stamp_s, in.odom.stamp_s);
   for (int k = 0; k < 3; ++k) {
     EXPECT_EQ(h.p_world_body[k], in.odom.p_world_body[k]);
@@ -79,7 +79,7 @@ void ExpectRecordEquals(const cdc::PlanRecord& in, const cdc::DecodedRecord& out
   EXPECT_EQ(h.t_total_ms, in.timings.total_ms);
   ASSERT_EQ(out.depth_code.size(), static_cast<size_t>(in.depth.width) * in.depth.height);
   for (size_t i = 0; i < out.depth_code.size(); ++i) {
-    ASSERT_EQ(out.depth_code[i], cdc::EncodeDepthMetres(in.depth.data_m[i])) << "pixel " << i;
+    ASSERT_EQ(out.depth_code[i], cdc::EncodeDepthMetres(in.depth.data[i])) << "pixel " << i;
   }
 }
 
@@ -254,7 +254,10 @@ TEST(DatasetWriter, RejectsInvalidRecordsWithAReasonAndCountsThem) {
   ExpectRejected(
       &writer, [&](cdc::PlanRecord* r) { r->depth.width = 31; }, "depth image is 31x24");
   ExpectRejected(
-      &writer, [&](cdc::PlanRecord* r) { r->depth.data_m = nullptr; }, "no data");
+      &writer, [&](cdc::PlanRecord* r) { r->depth.data = nullptr; }, "no data");
+  ExpectRejected(
+      &writer, [&](cdc::PlanRecord* r) { r->depth.row_stride = 31; },
+      "row stride 31 is shorter than a row of 32");
   ExpectRejected(
       &writer, [&](cdc::PlanRecord* r) { r->goal_world[2] = nan; }, "goal");
   ExpectRejected(
@@ -280,12 +283,12 @@ TEST(DatasetWriter, RejectsInvalidRecordsWithAReasonAndCountsThem) {
       "41 control points, more than max_ctrl_pts 40");
   // NaN depth pixels are REP 118 "invalid", not an error.
   const cdc::RecordResult ok = RecordModified(&writer, [&](cdc::PlanRecord* r) {
-    const_cast<float*>(r->depth.data_m)[0] = std::numeric_limits<float>::quiet_NaN();
+    const_cast<float*>(r->depth.data)[0] = std::numeric_limits<float>::quiet_NaN();
   });
   EXPECT_TRUE(ok.ok()) << ok.reason;
   EXPECT_EQ(ok.seq, 0u);  // rejections take no seq
   const cdc::FinalizeResult fin = writer.Finalize();
-  EXPECT_EQ(fin.stats.rejected, 12u);
+  EXPECT_EQ(fin.stats.rejected, 13u);
   EXPECT_EQ(fin.stats.written, 1u);
 }
 
@@ -312,10 +315,10 @@ TEST(DatasetWriter, CopiesStridedDepthRows) {
   }
   cdc::DatasetWriter writer(config);
   const cdc::RecordResult res = RecordModified(&writer, [&](cdc::PlanRecord* r) {
-    r->depth.data_m = padded.data();
+    r->depth.data = padded.data();
     r->depth.width = 5;
     r->depth.height = 3;
-    r->depth.row_stride_bytes = 8 * sizeof(float);
+    r->depth.row_stride = 8;
   });
   ASSERT_TRUE(res.ok()) << res.reason;
   writer.Finalize();

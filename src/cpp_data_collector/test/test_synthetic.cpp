@@ -74,9 +74,9 @@ TEST(SyntheticGenerator, RecordsAreValidAndSynchronised) {
   for (uint64_t i = 0; i < 30; ++i) {
     gen.Generate(i, &r);
     EXPECT_EQ(cdc::ValidatePlanRecord(r.record, wc), "") << i;
-    EXPECT_LE(r.record.depth.stamp_s - r.record.odom.stamp_s, 0.005 + 1e-12);
-    EXPECT_GE(r.record.depth.stamp_s - r.record.odom.stamp_s, 0.0);
-    EXPECT_GT(r.record.sim_time_s, r.record.depth.stamp_s);
+    EXPECT_LE(r.record.depth_stamp_s - r.record.odom.stamp_s, 0.005 + 1e-12);
+    EXPECT_GE(r.record.depth_stamp_s - r.record.odom.stamp_s, 0.0);
+    EXPECT_GT(r.record.sim_time_s, r.record.depth_stamp_s);
     EXPECT_EQ(r.record.episode_id, static_cast<int64_t>(i / 10));
     for (float d : r.depth_m) nan_pixels += std::isnan(d) ? 1 : 0;
   }

@@ -1,6 +1,6 @@
 #include "fast_planner/planner_config.h"
 
-#include <quad_common/strict_yaml.h>
+#include <quad_core/strict_yaml.h>
 
 #include <cmath>
 #include <sstream>
@@ -8,12 +8,12 @@
 
 namespace fast_planner {
 
-using quad_common::AtLeast;
-using quad_common::ConfigError;
-using quad_common::InRange;
-using quad_common::NonNegative;
-using quad_common::Positive;
-using quad_common::StrictYaml;
+using quad_core::AtLeast;
+using quad_core::ConfigError;
+using quad_core::InRange;
+using quad_core::NonNegative;
+using quad_core::Positive;
+using quad_core::StrictYaml;
 
 const char* ToString(MapSource source) {
   switch (source) {
@@ -27,7 +27,7 @@ const char* ToString(MapSource source) {
 
 namespace {
 
-Eigen::Vector3d GetVec3(StrictYaml& y, const std::string& key, const quad_common::Check& check = nullptr) {
+Eigen::Vector3d GetVec3(StrictYaml& y, const std::string& key, const quad_core::Check& check = nullptr) {
   const auto v = y.Get<std::vector<double>>(key, check);
   if (v.size() != 3) {
     throw ConfigError(y.source() + ": key '" + key + "' must be a list of 3 numbers, got " +
@@ -119,6 +119,12 @@ PlannerConfig ReadPlannerConfig(StrictYaml& y) {
   f.stopped_speed_mps = y.Get<double>("fsm.stopped_speed_mps", Positive());
   f.max_consecutive_failures = y.Get<int>("fsm.max_consecutive_failures", AtLeast(1));
   f.replan_final_approach = y.Get<bool>("fsm.replan_final_approach");
+
+  auto& n = c.node;
+  n.odom_period_s = y.Get<double>("node.odom_period_s", Positive());
+  n.tracker_accept_timeout_s = y.Get<double>("node.tracker_accept_timeout_s", NonNegative());
+  n.label_acc_window_s = y.Get<double>("node.label_acc_window_s", NonNegative());
+  n.collector_stats_period_s = y.Get<double>("node.collector_stats_period_s", NonNegative());
 
   y.CheckAllKeysUsed();
   ValidatePlannerConfig(c);
@@ -214,12 +220,20 @@ void ValidateFsmConfig(const FsmConfig& f) {
   }
 }
 
+void ValidateNodeConfig(const NodeConfig& n) {
+  CheckRange("node.odom_period_s", n.odom_period_s, 1e-4, 1.0);
+  CheckRange("node.tracker_accept_timeout_s", n.tracker_accept_timeout_s, 0.0, 60.0);
+  CheckRange("node.label_acc_window_s", n.label_acc_window_s, 0.0, 1.0);
+  CheckRange("node.collector_stats_period_s", n.collector_stats_period_s, 0.0, 86400.0);
+}
+
 void ValidatePlannerConfig(const PlannerConfig& c) {
   ValidateLimitsConfig(c.limits);
   ValidateMapConfig(c.map);
   ValidateSearchConfig(c.search);
   ValidateOptimizerConfig(c.optimizer);
   ValidateFsmConfig(c.fsm);
+  ValidateNodeConfig(c.node);
   // Cross-field constraints.
   const auto& m = c.map;
   // Samples coarser than a voxel could step over a thin obstacle.

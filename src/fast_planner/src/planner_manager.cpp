@@ -7,6 +7,7 @@
 #include <stdexcept>
 
 #include "fast_planner/time_reallocation.h"
+#include "quad_core/pairing.h"
 
 namespace fast_planner {
 
@@ -34,8 +35,8 @@ constexpr double kStopRampS = 0.3;
 
 }  // namespace
 
-std::string ValidateOdometry(const Odometry& o) {
-  if (!std::isfinite(o.stamp_s)) return "odometry stamp is not finite";
+std::string ValidateOdometry(const quad_core::VehicleState& o) {
+  if (!std::isfinite(o.t_s)) return "odometry stamp is not finite";
   if (!o.p_world_body.allFinite()) return "odometry position is not finite";
   if (!o.v_world.allFinite()) return "odometry velocity is not finite";
   if (!o.w_body.allFinite()) return "odometry angular velocity is not finite";
@@ -45,20 +46,20 @@ std::string ValidateOdometry(const Odometry& o) {
   return "";
 }
 
-Eigen::Vector3d AccelerationFromOdometry(const std::deque<Odometry>& history, double t_s, double window_s,
-                                         double max_acc_mps2) {
+Eigen::Vector3d AccelerationFromOdometry(const std::deque<quad_core::VehicleState>& history, double t_s,
+                                         double window_s, double max_acc_mps2) {
   if (!(window_s > 0.0)) return Eigen::Vector3d::Zero();
   auto newest = history.end();
   for (auto it = history.begin(); it != history.end(); ++it) {
-    if (it->stamp_s <= t_s + 1e-9) newest = it;
+    if (quad_core::OdometryNotNewerThanFrame(it->t_s, t_s)) newest = it;  // the pairing rule
   }
   if (newest == history.end()) return Eigen::Vector3d::Zero();
   auto older = history.end();
   for (auto it = history.begin(); it != newest; ++it) {
-    if (it->stamp_s <= newest->stamp_s - window_s + 1e-9) older = it;
+    if (it->t_s <= newest->t_s - window_s + 1e-9) older = it;
   }
   if (older == history.end()) return Eigen::Vector3d::Zero();
-  const double dt = newest->stamp_s - older->stamp_s;
+  const double dt = newest->t_s - older->t_s;
   Eigen::Vector3d a = (newest->v_world - older->v_world) / dt;
   if (!a.allFinite()) return Eigen::Vector3d::Zero();
   const double n = a.norm();
@@ -128,7 +129,7 @@ MapUpdateResult PlannerManager::UpdateDepth(std::shared_ptr<const DepthFrame> fr
   return r;
 }
 
-void PlannerManager::UpdateOdometry(const Odometry& odom) {
+void PlannerManager::UpdateOdometry(const quad_core::VehicleState& odom) {
   const std::string why = ValidateOdometry(odom);
   if (!why.empty()) throw std::invalid_argument("PlannerManager::UpdateOdometry: " + why);
   last_odom_ = odom;
@@ -194,7 +195,7 @@ PlanResult PlannerManager::Fail(PlanStatus status, const std::string& reason, co
   return r;
 }
 
-std::optional<double> PlannerManager::FirstCollision(const kr_tracker::NonUniformBspline& spline,
+std::optional<double> PlannerManager::FirstCollision(const quad_core::NonUniformBspline& spline,
                                                      double t_from,
                                                      const Eigen::Vector3d& escape_center) const {
   const double t_end = spline.tmax();
@@ -304,7 +305,7 @@ PlanResult PlannerManager::PlanOnPreparedMap(const PlanRequest& request) {
     }
     t = NowMs();
     const ReallocationResult realloc = ReallocateTime(
-        kr_tracker::NonUniformBspline::Uniform(q, kSplineDegree, ts), cfg_.limits,
+        quad_core::NonUniformBspline::Uniform(q, kSplineDegree, ts), cfg_.limits,
         cfg_.optimizer.realloc_max_iterations, cfg_.optimizer.realloc_margin, StartPolicy::kKeep);
     result.timings.reallocation_ms += NowMs() - t;
     t = NowMs();
@@ -370,7 +371,7 @@ PlanResult PlannerManager::PlanStop(const Eigen::Vector3d& p, const Eigen::Vecto
   const Eigen::MatrixXd q =
       FitUniformBspline(path, cfg_.optimizer.ctrl_pt_dist_m / cfg_.limits.max_vel_mps, a, true, &ts);
   const ReallocationResult realloc = ReallocateTime(
-      kr_tracker::NonUniformBspline::Uniform(q, kSplineDegree, ts), cfg_.limits,
+      quad_core::NonUniformBspline::Uniform(q, kSplineDegree, ts), cfg_.limits,
       cfg_.optimizer.realloc_max_iterations, cfg_.optimizer.realloc_margin, StartPolicy::kKeep);
   PlanResult r;
   r.status = PlanStatus::kSuccess;

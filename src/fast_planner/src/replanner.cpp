@@ -29,11 +29,11 @@ void Replanner::Reset() {
   last_plan_.reset();
 }
 
-ReplannerOutput Replanner::OnOdometry(const Odometry& odom) {
+ReplannerOutput Replanner::OnOdometry(const quad_core::VehicleState& odom) {
   ReplannerOutput out;
   const bool first = !manager_.last_odometry().has_value();
   manager_.UpdateOdometry(odom);  // throws on bad input, leaving everything unchanged
-  if (first) Feed(FsmEvent::kOdometryReady, odom.stamp_s, &out);
+  if (first) Feed(FsmEvent::kOdometryReady, odom.t_s, &out);
   return out;
 }
 
@@ -69,7 +69,7 @@ ReplannerOutput Replanner::Step(double now_s) {
     }
     case FsmMode::kExecuting: {
       const PlanResult& cur = *current_;
-      const kr_tracker::NonUniformBspline& spline = *cur.spline;
+      const quad_core::NonUniformBspline& spline = *cur.spline;
       const double t = now_s - cur.start_time_s;
       const bool ended = t >= spline.tmax();
       const double to_goal = goal_ ? (odom->p_world_body - *goal_).norm() : 0.0;
@@ -99,7 +99,7 @@ ReplannerOutput Replanner::Step(double now_s) {
 }
 
 PlanRequest Replanner::RequestFromOdometry(double now_s) const {
-  const Odometry& odom = *manager_.last_odometry();
+  const quad_core::VehicleState& odom = *manager_.last_odometry();
   PlanRequest r;
   r.start_p = odom.p_world_body;
   r.start_v = odom.v_world;
@@ -111,7 +111,7 @@ PlanRequest Replanner::RequestFromOdometry(double now_s) const {
 
 PlanRequest Replanner::RequestFromTrajectory(double now_s) const {
   if (!current_) return RequestFromOdometry(now_s);
-  const kr_tracker::NonUniformBspline& s = *current_->spline;
+  const quad_core::NonUniformBspline& s = *current_->spline;
   const double t = std::clamp(now_s - current_->start_time_s, s.tmin(), s.tmax());
   PlanRequest r = RequestFromOdometry(now_s);
   const Eigen::Vector3d p = Vec3(s.Evaluate(t));

@@ -7,15 +7,15 @@
 
 namespace fast_planner {
 
-double MaxVelocityRatio(const kr_tracker::NonUniformBspline& spline, double max_vel_mps) {
+double MaxVelocityRatio(const quad_core::NonUniformBspline& spline, double max_vel_mps) {
   return spline.Derivative().MaxCtrlPtNorm() / max_vel_mps;
 }
 
-double MaxAccelerationRatio(const kr_tracker::NonUniformBspline& spline, double max_acc_mps2) {
+double MaxAccelerationRatio(const quad_core::NonUniformBspline& spline, double max_acc_mps2) {
   return spline.Derivative(2).MaxCtrlPtNorm() / max_acc_mps2;
 }
 
-ReallocationResult ReallocateTime(const kr_tracker::NonUniformBspline& input, const LimitsConfig& limits,
+ReallocationResult ReallocateTime(const quad_core::NonUniformBspline& input, const LimitsConfig& limits,
                                   int max_iterations, double margin, StartPolicy start_policy) {
   const bool keep_start = start_policy == StartPolicy::kKeep;
   const int p = input.order();
@@ -54,7 +54,7 @@ ReallocationResult ReallocateTime(const kr_tracker::NonUniformBspline& input, co
     for (int k = std::max(k0, first_stretchable); k <= k1; ++k) (*stretch)[k] = std::max((*stretch)[k], s);
   };
   for (int iter = 0; iter < max_iterations; ++iter) {
-    const kr_tracker::NonUniformBspline spline(q, p, knots);
+    const quad_core::NonUniformBspline spline(q, p, knots);
     const Eigen::MatrixXd vel = spline.Derivative().ctrl_pts();
     const Eigen::MatrixXd acc = spline.Derivative(2).ctrl_pts();
     std::vector<double> stretch(num_spans, 1.0);
@@ -87,7 +87,7 @@ ReallocationResult ReallocateTime(const kr_tracker::NonUniformBspline& input, co
     plain.start_kept = false;
     return plain;
   }
-  const kr_tracker::NonUniformBspline spline(q, p, knots);
+  const quad_core::NonUniformBspline spline(q, p, knots);
   const double r = std::max(MaxVelocityRatio(spline, limits.max_vel_mps),
                             std::sqrt(MaxAccelerationRatio(spline, limits.max_acc_mps2)));
   result.iterations = max_iterations;

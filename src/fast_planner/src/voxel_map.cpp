@@ -24,8 +24,13 @@ std::string ValidateDepthFrame(const DepthFrame& f) {
     s << "image size " << k.width << "x" << k.height << " is not positive";
     return s.str();
   }
-  if (f.depth_m.size() != static_cast<size_t>(k.width) * static_cast<size_t>(k.height)) {
-    s << "depth has " << f.depth_m.size() << " values for a " << k.width << "x" << k.height << " image";
+  if (f.image.width != k.width || f.image.height != k.height) {
+    s << "depth image is " << f.image.width << "x" << f.image.height << ", the intrinsics are " << k.width
+      << "x" << k.height;
+    return s.str();
+  }
+  if (f.image.depth_m.size() != static_cast<size_t>(k.width) * static_cast<size_t>(k.height)) {
+    s << "depth has " << f.image.depth_m.size() << " values for a " << k.width << "x" << k.height << " image";
     return s.str();
   }
   if (!(std::isfinite(k.fx) && std::isfinite(k.fy) && k.fx > 0.0 && k.fy > 0.0)) {
@@ -182,7 +187,7 @@ MapUpdateStats VoxelMap::IntegrateDepth(const DepthFrame& frame) {
 
   for (int v = 0; v < k.height; v += dc.skip_pixel) {
     for (int u = 0; u < k.width; u += dc.skip_pixel) {
-      const float d = frame.depth_m[static_cast<size_t>(v) * k.width + u];
+      const float d = frame.image.depth_m[static_cast<size_t>(v) * k.width + u];
       if (std::isnan(d) || d == -std::numeric_limits<float>::infinity()) continue;
       const Eigen::Vector3d dir_c((u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0);  // depth 1 m along the ray
       const double range_per_depth = dir_c.norm();

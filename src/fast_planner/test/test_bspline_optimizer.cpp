@@ -1,5 +1,5 @@
 #include <gtest/gtest.h>
-#include <kr_tracker/bspline.h>
+#include <quad_core/bspline.h>
 
 #include <cmath>
 #include <random>
@@ -19,7 +19,7 @@ TEST(BsplineFitTest, ControlPointsFromStateReproduceTheState) {
   Eigen::MatrixXd q(6, 3);
   q.topRows(3) = ControlPointsFromState(p, v, a, ts);
   q.bottomRows(3) = Eigen::MatrixXd::Random(3, 3);
-  const auto s = kr_tracker::NonUniformBspline::Uniform(q, 3, ts);
+  const auto s = quad_core::NonUniformBspline::Uniform(q, 3, ts);
   EXPECT_LT((Row(s.Evaluate(0.0)) - p).norm(), 1e-12);
   EXPECT_LT((Row(s.Derivative().Evaluate(0.0)) - v).norm(), 1e-12);
   EXPECT_LT((Row(s.Derivative(2).Evaluate(0.0)) - a).norm(), 1e-9);
@@ -48,7 +48,7 @@ TEST(BsplineFitTest, FitMeetsTheStateExactlyAndFollowsThePath) {
     for (const bool fix_end : {false, true}) {
       double ts = 0.0;
       const Eigen::MatrixXd q = FitUniformBspline(path, 0.5 / 3.0, a0, fix_end, &ts);
-      const auto s = kr_tracker::NonUniformBspline::Uniform(q, 3, ts);
+      const auto s = quad_core::NonUniformBspline::Uniform(q, 3, ts);
       ASSERT_NEAR(s.duration(), path.duration_s(), 1e-9);
       EXPECT_LE(ts, 0.5 / 3.0 + 1e-12);
       EXPECT_LT((Row(s.Evaluate(0.0)) - path.Position(0.0)).norm(), 1e-12);

@@ -1,5 +1,5 @@
 #include <gtest/gtest.h>
-#include <quad_common/strict_yaml.h>
+#include <quad_core/strict_yaml.h>
 
 #include <fstream>
 #include <sstream>
@@ -18,7 +18,7 @@ std::string DefaultYaml() {
 }
 
 PlannerConfig FromText(const std::string& text) {
-  quad_common::StrictYaml y = quad_common::StrictYaml::FromString(text, "planner.yaml");
+  quad_core::StrictYaml y = quad_core::StrictYaml::FromString(text, "planner.yaml");
   return ReadPlannerConfig(y);
 }
 
@@ -34,7 +34,7 @@ void ExpectConfigError(const std::string& text, const std::string& fragment) {
   try {
     FromText(text);
     FAIL() << "expected a ConfigError containing: " << fragment;
-  } catch (const quad_common::ConfigError& e) {
+  } catch (const quad_core::ConfigError& e) {
     EXPECT_NE(std::string(e.what()).find(fragment), std::string::npos) << e.what();
   }
 }
@@ -47,6 +47,22 @@ TEST(PlannerConfigTest, DefaultFileHasThePaperDefaults) {
   EXPECT_EQ(c.optimizer.ctrl_pt_dist_m, 0.5);
   EXPECT_EQ(c.map.source, MapSource::kDepth);
   EXPECT_TRUE(c.fsm.replan_final_approach);  // ours, for datasets that cover the final approach
+}
+
+// The node's settings were parameter defaults in the node's code; they are required keys now.
+TEST(PlannerConfigTest, NodeSettingsAreRequiredKeysOfTheFile) {
+  const PlannerConfig c = LoadPlannerConfig(PLANNER_CONFIG_PATH);
+  EXPECT_EQ(c.node.odom_period_s, 0.005);
+  EXPECT_EQ(c.node.tracker_accept_timeout_s, 1.0);
+  EXPECT_EQ(c.node.label_acc_window_s, 0.05);
+  EXPECT_EQ(c.node.collector_stats_period_s, 30.0);
+  EXPECT_EQ(FromText(Edited("label_acc_window_s: 0.05", "label_acc_window_s: 0")).node.label_acc_window_s,
+            0.0);
+  ExpectConfigError(Edited("  tracker_accept_timeout_s: 1.0", "  #"),
+                    "missing required key 'node.tracker_accept_timeout_s'");
+  ExpectConfigError(Edited("label_acc_window_s: 0.05", "label_acc_window_s: -0.1"),
+                    "node.label_acc_window_s");
+  ExpectConfigError(Edited("odom_period_s: 0.005", "odom_period_s: 0"), "node.odom_period_s");
 }
 
 TEST(PlannerConfigTest, FinalApproachSwitchIsABoolean) {
@@ -95,7 +111,7 @@ TEST(PlannerConfigTest, HandBuiltConfigsAreValidatedToo) {
   try {
     ValidatePlannerConfig(c);
     FAIL();
-  } catch (const quad_common::ConfigError& e) {
+  } catch (const quad_core::ConfigError& e) {
     EXPECT_NE(std::string(e.what()).find("search.collision_step_m"), std::string::npos);
   }
 }

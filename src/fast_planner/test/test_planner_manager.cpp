@@ -26,12 +26,13 @@ std::vector<Eigen::Vector3d> BoxPoints(const Eigen::Vector3d& lo, const Eigen::V
 }
 
 // Odometry at 200 Hz from t = 0 with velocity v(t) = v0 + a t.
-std::deque<Odometry> AcceleratingHistory(const Eigen::Vector3d& v0, const Eigen::Vector3d& a, int n) {
-  std::deque<Odometry> h;
+std::deque<quad_core::VehicleState> AcceleratingHistory(const Eigen::Vector3d& v0, const Eigen::Vector3d& a,
+                                                        int n) {
+  std::deque<quad_core::VehicleState> h;
   for (int i = 0; i < n; ++i) {
-    Odometry o;
-    o.stamp_s = 0.005 * i;
-    o.v_world = v0 + a * o.stamp_s;
+    quad_core::VehicleState o;
+    o.t_s = 0.005 * i;
+    o.v_world = v0 + a * o.t_s;
     h.push_back(o);
   }
   return h;
@@ -48,8 +49,8 @@ TEST(AccelerationFromOdometry, RecoversAConstantAcceleration) {
 
 TEST(AccelerationFromOdometry, IgnoresOdometryAfterTheStamp) {
   auto h = AcceleratingHistory(Eigen::Vector3d::Zero(), Eigen::Vector3d(1.0, 0.0, 0.0), 60);
-  Odometry late;
-  late.stamp_s = 0.5;
+  quad_core::VehicleState late;
+  late.t_s = 0.5;
   late.v_world = Eigen::Vector3d(100.0, 0.0, 0.0);
   h.push_back(late);
   EXPECT_NEAR(AccelerationFromOdometry(h, 0.2, 0.05, 10.0).x(), 1.0, 1e-9);
@@ -85,7 +86,7 @@ struct SplineStats {
   bool enters_inflation = false;
 };
 
-SplineStats Sample(const kr_tracker::NonUniformBspline& s, const PlannerManager& m) {
+SplineStats Sample(const quad_core::NonUniformBspline& s, const PlannerManager& m) {
   SplineStats st;
   const auto vel = s.Derivative();
   const auto acc = s.Derivative(2);
@@ -261,7 +262,7 @@ class RecordingObserver : public PlanObserver {
  public:
   void OnPlan(const PlanRecord& r) override {
     depths.push_back(r.depth);
-    odom_stamps.push_back(r.odometry ? r.odometry->stamp_s : -1.0);
+    odom_stamps.push_back(r.odometry ? r.odometry->t_s : -1.0);
     goals.push_back(r.goal);
     traj_ids.push_back(r.result->traj_id);
     knots.push_back(r.result->spline->knots());
@@ -285,8 +286,8 @@ TEST(PlannerManagerTest, ObserverGetsTheExactInputsAndOutputOfEverySuccessfulPla
   frame->stamp_s = 4.5;
   const MapUpdateResult mu = m.UpdateDepth(frame);
   EXPECT_GT(mu.stats.rays, 0);
-  Odometry odom;
-  odom.stamp_s = 4.495;
+  quad_core::VehicleState odom;
+  odom.t_s = 4.495;
   odom.p_world_body = Eigen::Vector3d(2.0, 5.0, 1.5);
   m.UpdateOdometry(odom);
   PlanRequest req;
@@ -309,7 +310,7 @@ TEST(PlannerManagerTest, ObserverGetsTheExactInputsAndOutputOfEverySuccessfulPla
 
 TEST(PlannerManagerTest, NonFiniteOdometryAndMalformedDepthAreRejected) {
   PlannerManager m(GlobalConfig());
-  Odometry odom;
+  quad_core::VehicleState odom;
   odom.v_world.y() = std::numeric_limits<double>::infinity();
   try {
     m.UpdateOdometry(odom);
@@ -319,7 +320,7 @@ TEST(PlannerManagerTest, NonFiniteOdometryAndMalformedDepthAreRejected) {
   }
   EXPECT_FALSE(m.last_odometry().has_value());
   auto frame = std::make_shared<DepthFrame>(test::ConstantDepthFrame(1.0f, Eigen::Vector3d(2, 5, 1.5)));
-  frame->depth_m.resize(10);
+  frame->image.depth_m.resize(10);
   EXPECT_THROW(m.UpdateDepth(frame), std::invalid_argument);
   EXPECT_EQ(m.last_depth(), nullptr);
 }

@@ -34,7 +34,7 @@ struct FlightLog {
 FlightLog Fly(Replanner* rp, const std::vector<test::Aabb>& world, const Eigen::Vector3d& start,
               const Eigen::Vector3d& goal, double max_time_s, bool render_depth = true) {
   FlightLog log;
-  Odometry odom;
+  quad_core::VehicleState odom;
   auto collect = [&](const ReplannerOutput& out) {
     log.transitions.insert(log.transitions.end(), out.transitions.begin(), out.transitions.end());
     if (out.trajectory && out.trajectory->reason != "emergency stop") {
@@ -59,7 +59,7 @@ FlightLog Fly(Replanner* rp, const std::vector<test::Aabb>& world, const Eigen::
       odom.v_world = V3(s.Derivative().Evaluate(tt));
       if (odom.v_world.head<2>().norm() > 0.2) yaw = std::atan2(odom.v_world.y(), odom.v_world.x());
     }
-    odom.stamp_s = t;
+    odom.t_s = t;
     collect(rp->OnOdometry(odom));
     for (const auto& b : world)
       log.min_box_distance = std::min(log.min_box_distance, DistanceToBox(odom.p_world_body, b));
@@ -145,7 +145,7 @@ TEST(ReplannerTest, GoalsInObstaclesOrOutsideTheMapAreRejectedAndChangeNothing) 
   std::vector<Eigen::Vector3d> pts;
   for (double x = 5.05; x < 6.0; x += 0.1) pts.emplace_back(x, 5.05, 1.55);
   rp.manager().SetGlobalMap(pts);
-  Odometry odom;
+  quad_core::VehicleState odom;
   odom.p_world_body = Eigen::Vector3d(2.0, 5.0, 1.5);
   rp.OnOdometry(odom);
   ASSERT_EQ(rp.state().mode, FsmMode::kWaitGoal);
@@ -164,7 +164,7 @@ TEST(ReplannerTest, GoalsInObstaclesOrOutsideTheMapAreRejectedAndChangeNothing) 
 
 TEST(ReplannerTest, NonFiniteOdometryIsRejectedAndLeavesTheStateAlone) {
   Replanner rp(DepthConfig());
-  Odometry odom;
+  quad_core::VehicleState odom;
   odom.p_world_body = Eigen::Vector3d(2.0, 5.0, std::numeric_limits<double>::quiet_NaN());
   EXPECT_THROW(rp.OnOdometry(odom), std::invalid_argument);
   EXPECT_EQ(rp.state().mode, FsmMode::kIdle);
@@ -180,7 +180,7 @@ TEST(ReplannerTest, GoalEnclosedMidFlightStopsTheVehicleThenAbandonsTheGoalWithT
   c.fsm.max_consecutive_failures = 3;
   Replanner rp(c);
   rp.manager().SetGlobalMap({});
-  Odometry odom;
+  quad_core::VehicleState odom;
   odom.p_world_body = Eigen::Vector3d(2.0, 6.0, 1.5);
   rp.OnOdometry(odom);
   ReplannerOutput out;
@@ -210,7 +210,7 @@ TEST(ReplannerTest, GoalEnclosedMidFlightStopsTheVehicleThenAbandonsTheGoalWithT
     const double tt = std::clamp(t - rp.current()->start_time_s, s.tmin(), s.tmax());
     odom.p_world_body = V3(s.Evaluate(tt));
     odom.v_world = V3(s.Derivative().Evaluate(tt));
-    odom.stamp_s = t;
+    odom.t_s = t;
     rp.OnOdometry(odom);
     const ReplannerOutput o = rp.Step(t);
     transitions.insert(transitions.end(), o.transitions.begin(), o.transitions.end());

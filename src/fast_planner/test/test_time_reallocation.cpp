@@ -9,7 +9,7 @@ namespace fast_planner {
 namespace {
 
 // Speed and |acceleration| sampled densely over the whole domain.
-void MaxSampled(const kr_tracker::NonUniformBspline& s, double* v_max, double* a_max) {
+void MaxSampled(const quad_core::NonUniformBspline& s, double* v_max, double* a_max) {
   const auto vel = s.Derivative();
   const auto acc = s.Derivative(2);
   *v_max = 0.0;
@@ -37,7 +37,7 @@ TEST_P(ReallocationRandomTest, VelocityAndAccelerationEndWithinLimits) {
   std::mt19937 rng(GetParam());
   const LimitsConfig limits;  // 3 m/s, 2 m/s^2
   const Eigen::MatrixXd q = RandomWalk(&rng, 12 + GetParam() % 20, 0.5);
-  const auto input = kr_tracker::NonUniformBspline::Uniform(q, 3, 0.08 + 0.02 * (GetParam() % 5), 12.5);
+  const auto input = quad_core::NonUniformBspline::Uniform(q, 3, 0.08 + 0.02 * (GetParam() % 5), 12.5);
   double v0, a0;
   MaxSampled(input, &v0, &a0);
   ASSERT_TRUE(v0 > 3.0 || a0 > 2.0) << "the input must violate a limit for the test to mean anything";
@@ -80,7 +80,7 @@ TEST_P(KeepStartTest, StartIsKeptExactlyOrGivenUpAndTheLimitsHold) {
     v_i += a_i * ts;
     q.row(i) = q.row(i - 1) + v_i.transpose() * ts;
   }
-  const auto input = kr_tracker::NonUniformBspline::Uniform(q, 3, ts);
+  const auto input = quad_core::NonUniformBspline::Uniform(q, 3, ts);
   const ReallocationResult r = ReallocateTime(input, LimitsConfig{}, 20, 1.02, StartPolicy::kKeep);
   ASSERT_TRUE(r.max_vel_ratio_before > 1.0 || r.max_acc_ratio_before > 1.0) << "nothing to re-allocate";
   const auto& s = r.spline;
@@ -112,7 +112,7 @@ TEST(ReallocationTest, ANearlyFeasibleSplineKeepsItsStartExactly) {
     const double speed = i < 8 ? 2.0 : 3.45;
     q.row(i) = q.row(i - 1) + Eigen::RowVector3d(speed * ts, 0.0, 0.0);
   }
-  const auto input = kr_tracker::NonUniformBspline::Uniform(q, 3, ts);
+  const auto input = quad_core::NonUniformBspline::Uniform(q, 3, ts);
   const ReallocationResult r = ReallocateTime(input, LimitsConfig{}, 20, 1.02, StartPolicy::kKeep);
   ASSERT_TRUE(r.start_kept);
   EXPECT_LT((r.spline.Evaluate(0.0) - p).norm(), 1e-9);
@@ -133,7 +133,7 @@ TEST(ReallocationTest, AStartThatCannotBeKeptIsGivenUpAndTheLimitsStillHold) {
   q.topRows(3) = ControlPointsFromState(p, v, a, ts);
   q.row(3) = 2 * q.row(2) - q.row(1) + Eigen::RowVector3d(0.0, 4.0, 0.0) * ts * ts;
   for (int i = 4; i < 12; ++i) q.row(i) = 2 * q.row(i - 1) - q.row(i - 2);
-  const auto input = kr_tracker::NonUniformBspline::Uniform(q, 3, ts);
+  const auto input = quad_core::NonUniformBspline::Uniform(q, 3, ts);
   const ReallocationResult r = ReallocateTime(input, LimitsConfig{}, 20, 1.02, StartPolicy::kKeep);
   EXPECT_FALSE(r.start_kept);
   double v1, a1;
@@ -145,7 +145,7 @@ TEST(ReallocationTest, AStartThatCannotBeKeptIsGivenUpAndTheLimitsStillHold) {
 TEST(ReallocationTest, FeasibleSplineIsOnlyShiftedToStartAtZero) {
   std::mt19937 rng(3);
   const Eigen::MatrixXd q = RandomWalk(&rng, 10, 0.1);
-  const auto input = kr_tracker::NonUniformBspline::Uniform(q, 3, 1.0, 4.0);
+  const auto input = quad_core::NonUniformBspline::Uniform(q, 3, 1.0, 4.0);
   ASSERT_LE(MaxVelocityRatio(input, 3.0), 1.0);
   ASSERT_LE(MaxAccelerationRatio(input, 2.0), 1.0);
   const ReallocationResult r = ReallocateTime(input, LimitsConfig{}, 20, 1.02);
@@ -159,7 +159,7 @@ TEST(ReallocationTest, OneFastSectionIsSlowedLocallyNotTheWholeSpline) {
   // Slow everywhere except one long jump in the middle.
   Eigen::MatrixXd q(20, 3);
   for (int i = 0; i < 20; ++i) q.row(i) << 0.1 * i + (i >= 10 ? 2.0 : 0.0), 0.0, 0.0;
-  const auto input = kr_tracker::NonUniformBspline::Uniform(q, 3, 0.2);
+  const auto input = quad_core::NonUniformBspline::Uniform(q, 3, 0.2);
   const ReallocationResult r = ReallocateTime(input, LimitsConfig{}, 20, 1.02);
   ASSERT_FALSE(r.used_uniform_fallback);
   double v1, a1;
@@ -175,7 +175,7 @@ TEST(ReallocationTest, OneFastSectionIsSlowedLocallyNotTheWholeSpline) {
 TEST(ReallocationTest, UniformFallbackStillMeetsTheLimits) {
   std::mt19937 rng(8);
   const Eigen::MatrixXd q = RandomWalk(&rng, 15, 1.0);
-  const auto input = kr_tracker::NonUniformBspline::Uniform(q, 3, 0.02);
+  const auto input = quad_core::NonUniformBspline::Uniform(q, 3, 0.02);
   const ReallocationResult r = ReallocateTime(input, LimitsConfig{}, 1, 1.02);
   EXPECT_TRUE(r.used_uniform_fallback);
   double v1, a1;
@@ -186,9 +186,9 @@ TEST(ReallocationTest, UniformFallbackStillMeetsTheLimits) {
 
 TEST(ReallocationTest, BadArgumentsThrow) {
   Eigen::MatrixXd q = Eigen::MatrixXd::Random(5, 3);
-  const auto linear = kr_tracker::NonUniformBspline::Uniform(q, 1, 0.1);
+  const auto linear = quad_core::NonUniformBspline::Uniform(q, 1, 0.1);
   EXPECT_THROW(ReallocateTime(linear, LimitsConfig{}, 5, 1.02), std::invalid_argument);
-  const auto cubic = kr_tracker::NonUniformBspline::Uniform(q, 3, 0.1);
+  const auto cubic = quad_core::NonUniformBspline::Uniform(q, 3, 0.1);
   EXPECT_THROW(ReallocateTime(cubic, LimitsConfig{}, 5, 0.9), std::invalid_argument);
 }
 

@@ -54,9 +54,10 @@ inline Eigen::Quaterniond CameraLookingAlongX() {
 inline DepthFrame ConstantDepthFrame(float depth_m, const Eigen::Vector3d& p_world_camera, int width = 64,
                                      int height = 48) {
   DepthFrame f;
-  f.intrinsics =
-      CameraIntrinsics{width, height, 0.6 * width, 0.6 * width, 0.5 * (width - 1), 0.5 * (height - 1)};
-  f.depth_m.assign(static_cast<size_t>(width) * height, depth_m);
+  f.intrinsics = quad_core::CameraIntrinsics{
+      width, height, 0.6 * width, 0.6 * width, 0.5 * (width - 1), 0.5 * (height - 1)};
+  f.image =
+      quad_core::DepthImage{width, height, std::vector<float>(static_cast<size_t>(width) * height, depth_m)};
   f.p_world_camera = p_world_camera;
   f.q_world_camera = CameraLookingAlongX();
   return f;
@@ -76,9 +77,11 @@ inline DepthFrame RenderDepth(const std::vector<Aabb>& boxes, const Eigen::Vecto
                               const Eigen::Quaterniond& q_world_camera, int width = 160, int height = 120,
                               double max_range_m = 10.0) {
   DepthFrame f;
-  f.intrinsics =
-      CameraIntrinsics{width, height, 0.6 * width, 0.6 * width, 0.5 * (width - 1), 0.5 * (height - 1)};
-  f.depth_m.assign(static_cast<size_t>(width) * height, std::numeric_limits<float>::infinity());
+  f.intrinsics = quad_core::CameraIntrinsics{
+      width, height, 0.6 * width, 0.6 * width, 0.5 * (width - 1), 0.5 * (height - 1)};
+  f.image = quad_core::DepthImage{
+      width, height,
+      std::vector<float>(static_cast<size_t>(width) * height, std::numeric_limits<float>::infinity())};
   f.p_world_camera = p_world_camera;
   f.q_world_camera = q_world_camera;
   const Eigen::Matrix3d R = q_world_camera.toRotationMatrix();
@@ -105,7 +108,7 @@ inline DepthFrame RenderDepth(const std::vector<Aabb>& boxes, const Eigen::Vecto
         if (hit) best = t0;
       }
       if (best * d_c.norm() <= max_range_m)
-        f.depth_m[static_cast<size_t>(v) * width + u] = static_cast<float>(best);
+        f.image.depth_m[static_cast<size_t>(v) * width + u] = static_cast<float>(best);
     }
   }
   return f;

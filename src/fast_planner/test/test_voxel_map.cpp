@@ -87,7 +87,7 @@ TEST_F(DepthMapTest, InvalidPixelsAreSkipped) {
 
 TEST_F(DepthMapTest, MalformedFramesAreRejectedWithTheReason) {
   DepthFrame f = ConstantDepthFrame(2.0f, cam_);
-  f.depth_m.pop_back();
+  f.image.depth_m.pop_back();
   try {
     map_.IntegrateDepth(f);
     FAIL() << "expected std::invalid_argument";

@@ -26,7 +26,7 @@ std::string ValidateGoalSpec(const BsplineGoalSpec& spec) {
   if (spec.pos_pts.cols() != 3) {
     return "position control points have " + std::to_string(spec.pos_pts.cols()) + " columns, expected 3";
   }
-  const std::string why = ValidateBspline(spec.order, spec.knots, spec.pos_pts);
+  const std::string why = quad_core::ValidateBspline(spec.order, spec.knots, spec.pos_pts);
   if (!why.empty()) return "position B-spline: " + why;
   if (!std::isfinite(spec.start_time_s)) return "start_time is not finite";
   if (!std::isfinite(spec.yaw_dt_s)) return "yaw_dt is not finite";
@@ -64,21 +64,21 @@ const char* ToString(GoalEventKind kind) {
 BsplineTracker::BsplineTracker(const BsplineTrackerConfig& config) : config_(config) { config_.Validate(); }
 
 BsplineTracker::Goal BsplineTracker::MakeGoal(uint64_t id, const BsplineGoalSpec& spec) {
-  const NonUniformBspline pos(spec.pos_pts, spec.order, spec.knots);
+  const quad_core::NonUniformBspline pos(spec.pos_pts, spec.order, spec.knots);
   // Derivatives of a degree-p spline beyond p are zero: Derivative() handles degree 0 that way.
-  const NonUniformBspline vel = pos.Derivative();
-  const NonUniformBspline acc = vel.Derivative();
+  const quad_core::NonUniformBspline vel = pos.Derivative();
+  const quad_core::NonUniformBspline acc = vel.Derivative();
   Goal g{id, spec.traj_id, spec.start_time_s, pos, vel, acc, acc.Derivative(), std::nullopt, std::nullopt};
   if (!spec.yaw_pts.empty()) {
     const Eigen::MatrixXd yaw_pts = Eigen::Map<const Eigen::VectorXd>(
         spec.yaw_pts.data(), static_cast<Eigen::Index>(spec.yaw_pts.size()));
-    g.yaw = NonUniformBspline::Uniform(yaw_pts, spec.order, spec.yaw_dt_s, 0.0);
+    g.yaw = quad_core::NonUniformBspline::Uniform(yaw_pts, spec.order, spec.yaw_dt_s, 0.0);
     g.yaw_rate = g.yaw->Derivative();
   }
   return g;
 }
 
-void BsplineTracker::Activate(const PositionReference& last_ref, const VehicleState& state) {
+void BsplineTracker::Activate(const PositionReference& last_ref, const quad_core::VehicleState& state) {
   last_ref_ = PositionReference::Hold(last_ref.p_world, last_ref.yaw_rad);
   active_ = true;
   completed_ = false;
@@ -105,7 +105,7 @@ TrackerStatus BsplineTracker::status() const {
 }
 
 std::string BsplineTracker::AddGoal(uint64_t goal_id, const BsplineGoalSpec& spec, double now_s,
-                                    const VehicleState& state) {
+                                    const quad_core::VehicleState& state) {
   std::string why = ValidateGoalSpec(spec);
   if (!why.empty()) return why;
   std::ostringstream s;
@@ -203,12 +203,12 @@ double BsplineTracker::DirectionOfTravelYaw(const Eigen::Vector3d& v_world, doub
   if (v_world.head<2>().norm() < config_.min_speed_for_yaw_mps || !(dt_s > 0.0)) return current;
   const double desired = std::atan2(v_world.y(), v_world.x());
   const double max_step = config_.max_yaw_rate_radps * dt_s;
-  const double step = std::clamp(WrapAngle(desired - current), -max_step, max_step);
+  const double step = std::clamp(quad_core::WrapAngle(desired - current), -max_step, max_step);
   *yaw_rate_radps = step / dt_s;
-  return WrapAngle(current + step);
+  return quad_core::WrapAngle(current + step);
 }
 
-PositionReference BsplineTracker::Update(const VehicleState& state) {
+PositionReference BsplineTracker::Update(const quad_core::VehicleState& state) {
   const double t = state.t_s;
   const double dt = has_last_state_ ? t - last_state_.t_s : 0.0;
   const Eigen::Vector3d p_prev = has_last_state_ ? last_state_.p_world_body : state.p_world_body;
@@ -243,7 +243,7 @@ PositionReference BsplineTracker::Update(const VehicleState& state) {
     r.j_world = g.jerk.Evaluate(u);
   }
   if (g.yaw) {
-    r.yaw_rad = WrapAngle(g.yaw->Evaluate(tau)(0));
+    r.yaw_rad = quad_core::WrapAngle(g.yaw->Evaluate(tau)(0));
     r.yaw_rate_radps = tau < g.yaw->tmax() ? g.yaw_rate->Evaluate(tau)(0) : 0.0;
   } else {
     r.yaw_rad = DirectionOfTravelYaw(r.v_world, dt, &r.yaw_rate_radps);

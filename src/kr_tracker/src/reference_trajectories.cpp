@@ -7,7 +7,7 @@
 
 namespace kr_tracker {
 
-NonUniformBspline MakeFigureEight(const FigureEightSpec& spec, double t0_s) {
+quad_core::NonUniformBspline MakeFigureEight(const FigureEightSpec& spec, double t0_s) {
   if (!(spec.half_length_m > 0.0) || !(spec.half_width_m > 0.0) || spec.laps < 1 ||
       !(spec.peak_speed_mps > 0.0) || !(spec.ctrl_pt_dt_s > 0.0) ||
       !(spec.ramp_fraction > 0.0 && spec.ramp_fraction < 0.5)) {
@@ -49,13 +49,14 @@ NonUniformBspline MakeFigureEight(const FigureEightSpec& spec, double t0_s) {
   }
   pts.row(row++) = curve(theta_total).transpose();
   pts.row(row++) = curve(theta_total).transpose();
-  const NonUniformBspline raw = NonUniformBspline::Uniform(pts, 3, spec.ctrl_pt_dt_s, t0_s);
+  const quad_core::NonUniformBspline raw =
+      quad_core::NonUniformBspline::Uniform(pts, 3, spec.ctrl_pt_dt_s, t0_s);
   const double peak = SampledPeakSpeed(raw);
   return raw.TimeScaled(peak / spec.peak_speed_mps);
 }
 
-double SampledPeakSpeed(const NonUniformBspline& pos, double dt_s) {
-  const NonUniformBspline vel = pos.Derivative();
+double SampledPeakSpeed(const quad_core::NonUniformBspline& pos, double dt_s) {
+  const quad_core::NonUniformBspline vel = pos.Derivative();
   double peak = 0.0;
   const int n = std::max(1, static_cast<int>(std::ceil(pos.duration() / dt_s)));
   for (int i = 0; i <= n; ++i)

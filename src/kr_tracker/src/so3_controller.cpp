@@ -97,7 +97,8 @@ So3Command So3Controller::HoverCommand(double yaw_rad) const {
   return c;
 }
 
-ControlOutput So3Controller::Compute(const PositionReference& ref, const VehicleState& state, double dt_s) {
+ControlOutput So3Controller::Compute(const PositionReference& ref, const quad_core::VehicleState& state,
+                                     double dt_s) {
   ControlOutput out;
   if (!ref.AllFinite() || !state.AllFinite() || !std::isfinite(dt_s)) {
     out.command = HoverCommand(std::isfinite(ref.yaw_rad) ? ref.yaw_rad : 0.0);

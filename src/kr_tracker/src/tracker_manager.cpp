@@ -32,7 +32,7 @@ Tracker* TrackerManager::Find(const std::string& name) {
   return nullptr;
 }
 
-ControlStep TrackerManager::OnOdometry(const VehicleState& state) {
+ControlStep TrackerManager::OnOdometry(const quad_core::VehicleState& state) {
   ControlStep step;
   if (!state.AllFinite()) {
     // Hold: the hover command at the last good reference's yaw, and that reference's pose held (zero
@@ -117,7 +117,7 @@ std::string TrackerManager::OnEpisodeStatus(uint32_t episode_id, double start_ti
   return s.str();
 }
 
-void TrackerManager::ReAnchor(const VehicleState& state, const std::string& reason) {
+void TrackerManager::ReAnchor(const quad_core::VehicleState& state, const std::string& reason) {
   bspline_.AbortAll(reason.empty() ? "re-anchored" : reason);
   bspline_switch_at_s_.reset();
   // Deactivating every tracker drops the line tracker's goal and profile and the B-spline tracker's state

@@ -22,12 +22,12 @@ const char* ToString(TrackerStatus status) {
   return "unknown";
 }
 
-void HoverTracker::Activate(const PositionReference& last_ref, const VehicleState& /*state*/) {
+void HoverTracker::Activate(const PositionReference& last_ref, const quad_core::VehicleState& /*state*/) {
   hold_ = PositionReference::Hold(last_ref.p_world, last_ref.yaw_rad);
   active_ = true;
 }
 
-PositionReference HoverTracker::Update(const VehicleState& /*state*/) { return hold_; }
+PositionReference HoverTracker::Update(const quad_core::VehicleState& /*state*/) { return hold_; }
 
 // ---------------------------------------------------------------------------------------------------------------
 // Line tracker
@@ -100,7 +100,7 @@ double MinJerkDuration(const Eigen::Vector3d& p0, const Eigen::Vector3d& v0, con
 
 LineTracker::LineTracker(const LineTrackerConfig& config) : config_(config) { config_.Validate(); }
 
-void LineTracker::Activate(const PositionReference& last_ref, const VehicleState& /*state*/) {
+void LineTracker::Activate(const PositionReference& last_ref, const quad_core::VehicleState& /*state*/) {
   last_ref_ = last_ref;
   active_ = true;
   moving_ = false;
@@ -136,14 +136,14 @@ std::string LineTracker::SetGoal(const Eigen::Vector3d& p_goal_world, double yaw
   if (!why.empty()) return why;
   Goal g;
   g.p_world = p_goal_world;
-  g.yaw_rad = WrapAngle(yaw_goal_rad);
+  g.yaw_rad = quad_core::WrapAngle(yaw_goal_rad);
   g.max_vel_mps = max_vel_mps > 0.0 ? max_vel_mps : config_.default_max_vel_mps;
   g.max_acc_mps2 = max_acc_mps2 > 0.0 ? max_acc_mps2 : config_.default_max_acc_mps2;
   pending_ = g;
   return "";
 }
 
-PositionReference LineTracker::Update(const VehicleState& state) {
+PositionReference LineTracker::Update(const quad_core::VehicleState& state) {
   if (pending_) {
     // Plan from the current reference (position, velocity, acceleration): no jump when a goal changes
     // mid-flight.
@@ -153,7 +153,7 @@ PositionReference LineTracker::Update(const VehicleState& state) {
                                      g.max_vel_mps, g.max_acc_mps2);
     segment_ = MinJerkSegment(last_ref_.p_world, last_ref_.v_world, last_ref_.a_world, g.p_world, t);
     yaw_start_rad_ = last_ref_.yaw_rad;
-    yaw_delta_rad_ = WrapAngle(g.yaw_rad - last_ref_.yaw_rad);
+    yaw_delta_rad_ = quad_core::WrapAngle(g.yaw_rad - last_ref_.yaw_rad);
     // Rest-to-rest quintic in yaw: peak rate 15/8 |delta| / T.
     yaw_duration_s_ = std::max(t, 1.875 * std::fabs(yaw_delta_rad_) / config_.max_yaw_rate_radps);
     t_start_s_ = state.t_s;
@@ -170,7 +170,7 @@ PositionReference LineTracker::Update(const VehicleState& state) {
   const double tau = std::clamp(t / yaw_duration_s_, 0.0, 1.0);
   const double s = tau * tau * tau * (10.0 - 15.0 * tau + 6.0 * tau * tau);
   const double s_dot = 30.0 * tau * tau * (1.0 - tau) * (1.0 - tau) / yaw_duration_s_;
-  r.yaw_rad = WrapAngle(yaw_start_rad_ + yaw_delta_rad_ * s);
+  r.yaw_rad = quad_core::WrapAngle(yaw_start_rad_ + yaw_delta_rad_ * s);
   r.yaw_rate_radps = yaw_delta_rad_ * s_dot;
   if (t >= std::max(segment_.duration_s(), yaw_duration_s_)) {
     moving_ = false;

@@ -150,7 +150,7 @@ TEST(ZieglerNichols, OscillationAnalysisMeasuresGrowthAndPeriod) {
 
 TEST(FigureEight, StartsAndEndsAtRestAtTheCentreWithTheRequestedPeakSpeed) {
   FigureEightSpec spec;
-  const NonUniformBspline s = MakeFigureEight(spec, 5.0);
+  const quad_core::NonUniformBspline s = MakeFigureEight(spec, 5.0);
   EXPECT_DOUBLE_EQ(s.tmin(), 5.0);
   EXPECT_NEAR(SampledPeakSpeed(s, 1e-4), 2.0, 1e-3);
   EXPECT_TRUE(s.Evaluate(s.tmin()).isApprox(spec.center_world, 1e-9));

@@ -4,7 +4,7 @@
 #include <fstream>
 #include <sstream>
 
-#include <quad_common/strict_yaml.h>
+#include <quad_core/strict_yaml.h>
 
 #include "kr_tracker/config.h"
 
@@ -19,10 +19,10 @@ std::string ReadRepoConfig() {
 }
 
 std::string LoadError(const std::string& text) {
-  quad_common::StrictYaml y = quad_common::StrictYaml::FromString(text, "tracker.yaml");
+  quad_core::StrictYaml y = quad_core::StrictYaml::FromString(text, "tracker.yaml");
   try {
     ReadTrackerConfig(&y);
-  } catch (const quad_common::ConfigError& e) {
+  } catch (const quad_core::ConfigError& e) {
     return e.what();
   }
   return "";
@@ -68,12 +68,12 @@ TEST(TrackerConfig, OdometryJumpLimitIsOptionalAndChecked) {
   while (std::getline(lines, line)) {
     if (line.find("max_odom_jump_m") == std::string::npos) without += line + "\n";
   }
-  quad_common::StrictYaml y0 = quad_common::StrictYaml::FromString(without, "tracker.yaml");
+  quad_core::StrictYaml y0 = quad_core::StrictYaml::FromString(without, "tracker.yaml");
   EXPECT_DOUBLE_EQ(ReadTrackerConfig(&y0).max_odom_jump_m, 1.0);
   auto with_value = [&](const std::string& v) {
     return Replace(without, "node:\n", "node:\n  max_odom_jump_m: " + v + "\n");
   };
-  quad_common::StrictYaml y1 = quad_common::StrictYaml::FromString(with_value("2.5"), "tracker.yaml");
+  quad_core::StrictYaml y1 = quad_core::StrictYaml::FromString(with_value("2.5"), "tracker.yaml");
   EXPECT_DOUBLE_EQ(ReadTrackerConfig(&y1).max_odom_jump_m, 2.5);
   for (const char* bad : {"0", "-1"}) {
     const std::string why = LoadError(with_value(bad));

@@ -14,8 +14,8 @@ constexpr double kMass = 0.75;
 constexpr double kG = 9.81;
 constexpr double kMaxThrust = 28.8;  // vehicle.yaml: 4 * 8e-7 * 3000^2
 
-VehicleState StateAt(const PositionReference& r) {
-  VehicleState s;
+quad_core::VehicleState StateAt(const PositionReference& r) {
+  quad_core::VehicleState s;
   s.p_world_body = r.p_world;
   s.v_world = r.v_world;
   s.a_world = r.a_world;
@@ -37,7 +37,7 @@ TEST(So3Controller, HoverCommandEqualsWeightWithLevelAttitudeAtAnyYaw) {
     EXPECT_TRUE(out.command.force_world_N.isApprox(Eigen::Vector3d(0, 0, kMass * kG), 1e-12));
     const Eigen::Vector3d b3 = out.command.q_world_des * Eigen::Vector3d::UnitZ();
     EXPECT_NEAR((b3 - Eigen::Vector3d::UnitZ()).norm(), 0.0, 1e-12);
-    EXPECT_NEAR(WrapAngle(Yaw(out.command.q_world_des) - yaw), 0.0, 1e-12);
+    EXPECT_NEAR(quad_core::WrapAngle(Yaw(out.command.q_world_des) - yaw), 0.0, 1e-12);
     EXPECT_NEAR(out.command.w_body_des_radps.norm(), 0.0, 1e-12);
     EXPECT_TRUE(out.command.kR.isApprox(So3Gains{}.kR));
     EXPECT_TRUE(out.command.kOm.isApprox(So3Gains{}.kOm));
@@ -52,7 +52,7 @@ TEST(So3Controller, ForceIsMassTimesPdPlusFeedforwardPlusGravity) {
   ref.p_world = Eigen::Vector3d(0.1, -0.05, 0.2);
   ref.v_world = Eigen::Vector3d(0.3, 0.1, -0.1);
   ref.a_world = Eigen::Vector3d(0.2, -0.4, 0.5);
-  VehicleState s;
+  quad_core::VehicleState s;
   s.v_world = Eigen::Vector3d(0.1, 0.0, 0.05);
   const So3Gains g;
   const Eigen::Vector3d expected =
@@ -69,7 +69,7 @@ TEST(So3Controller, TiltIsLimitedAndVerticalCommandStaysPositive) {
   So3Gains g;
   g.max_tilt_rad = 0.5;
   So3Controller c(g, kMass, kG, kMaxThrust);
-  VehicleState s;
+  quad_core::VehicleState s;
   const ControlOutput out = c.Compute(PositionReference::Hold(Eigen::Vector3d(10, 5, 0), 0.0), s, 0.005);
   const Eigen::Vector3d f = out.command.force_world_N;
   EXPECT_NEAR(std::atan2(f.head<2>().norm(), f.z()), 0.5, 1e-12);
@@ -85,7 +85,7 @@ TEST(So3Controller, ForceIsLimitedToTheThrustFractionKeepingTheVerticalPart) {
   const So3Gains g;  // max_thrust_fraction 0.85
   So3Controller c(g, kMass, kG, kMaxThrust);
   const double limit_N = 0.85 * kMaxThrust;
-  VehicleState s;
+  quad_core::VehicleState s;
   // Straight up, far: vertical only, at the limit.
   ControlOutput out = c.Compute(PositionReference::Hold(Eigen::Vector3d(0, 0, 50), 0.0), s, 0.005);
   EXPECT_TRUE(out.command.force_world_N.isApprox(Eigen::Vector3d(0, 0, limit_N), 1e-12));
@@ -141,10 +141,10 @@ TEST(So3Controller, WithoutMeasuredAccelerationTheReferenceAccelerationIsAssumed
   ref.v_world = Eigen::Vector3d(1.0, 0.5, 0.0);
   ref.a_world = Eigen::Vector3d(-2.0, 1.0, 0.5);
   ref.j_world = Eigen::Vector3d(0.5, -3.0, 0.0);
-  VehicleState unmeasured;
+  quad_core::VehicleState unmeasured;
   unmeasured.v_world = Eigen::Vector3d(0.9, 0.4, 0.1);
   unmeasured.a_world = Eigen::Vector3d(7.0, 7.0, 7.0);  // ignored: has_accel is false
-  VehicleState measured = unmeasured;
+  quad_core::VehicleState measured = unmeasured;
   measured.has_accel = true;
   measured.a_world = ref.a_world;
   const Eigen::Vector3d w_unmeasured = c.Compute(ref, unmeasured, 0.0).command.w_body_des_radps;
@@ -158,7 +158,7 @@ TEST(So3Controller, IntegralAccumulatesWithDtAndIsClamped) {
   g.ki = Eigen::Vector3d(1.0, 2.0, 0.0);
   g.max_pos_int_mps2 = 0.3;
   So3Controller c(g, kMass, kG, kMaxThrust);
-  VehicleState s;
+  quad_core::VehicleState s;
   const PositionReference ref = PositionReference::Hold(Eigen::Vector3d(0.1, 0.1, 0.1), 0.0);
   c.Compute(ref, s, 0.5);
   EXPECT_TRUE(c.integral_mps2().isApprox(Eigen::Vector3d(0.05, 0.1, 0.0), 1e-12));
@@ -172,7 +172,7 @@ TEST(So3Controller, NonFiniteInputGivesHoverCommandAndLeavesIntegralUntouched) {
   So3Gains g;
   g.ki = Eigen::Vector3d::Ones();
   So3Controller c(g, kMass, kG, kMaxThrust);
-  VehicleState s;
+  quad_core::VehicleState s;
   c.Compute(PositionReference::Hold(Eigen::Vector3d(0.2, 0, 0), 0.0), s, 0.1);
   const Eigen::Vector3d integral = c.integral_mps2();
   PositionReference bad = PositionReference::Hold(Eigen::Vector3d(1, 0, 0), 0.3);
@@ -183,7 +183,7 @@ TEST(So3Controller, NonFiniteInputGivesHoverCommandAndLeavesIntegralUntouched) {
   EXPECT_TRUE(out.command.force_world_N.isApprox(Eigen::Vector3d(0, 0, kMass * kG)));
   EXPECT_TRUE(out.command.AllFinite());
   EXPECT_TRUE(c.integral_mps2().isApprox(integral));
-  VehicleState bad_state;
+  quad_core::VehicleState bad_state;
   bad_state.p_world_body.z() = std::numeric_limits<double>::infinity();
   out = c.Compute(PositionReference::Hold(Eigen::Vector3d::Zero(), 0.0), bad_state, 0.1);
   EXPECT_EQ(out.status, ControlStatus::kNonFiniteInput);
@@ -206,11 +206,11 @@ TEST(So3Controller, BadParametersThrowNamingTheField) {
 }
 
 TEST(Types, WrapAngleMapsToMinusPiExclusivePiInclusive) {
-  EXPECT_DOUBLE_EQ(WrapAngle(M_PI), M_PI);
-  EXPECT_DOUBLE_EQ(WrapAngle(-M_PI), M_PI);
-  EXPECT_NEAR(WrapAngle(3 * M_PI / 2), -M_PI / 2, 1e-12);
-  EXPECT_NEAR(WrapAngle(-7.0), -7.0 + 2 * M_PI, 1e-12);
-  EXPECT_NEAR(WrapAngle(0.3), 0.3, 1e-15);
+  EXPECT_DOUBLE_EQ(quad_core::WrapAngle(M_PI), M_PI);
+  EXPECT_DOUBLE_EQ(quad_core::WrapAngle(-M_PI), M_PI);
+  EXPECT_NEAR(quad_core::WrapAngle(3 * M_PI / 2), -M_PI / 2, 1e-12);
+  EXPECT_NEAR(quad_core::WrapAngle(-7.0), -7.0 + 2 * M_PI, 1e-12);
+  EXPECT_NEAR(quad_core::WrapAngle(0.3), 0.3, 1e-15);
 }
 
 }  // namespace

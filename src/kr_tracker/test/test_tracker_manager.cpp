@@ -18,9 +18,9 @@ constexpr double kMass = 1.0;
 constexpr double kG = 9.81;
 constexpr double kMaxThrust = 30.0;
 
-VehicleState Odom(double t, const Eigen::Vector3d& p, double yaw = 0.0,
-                  const Eigen::Vector3d& v = Eigen::Vector3d::Zero()) {
-  VehicleState s;
+quad_core::VehicleState Odom(double t, const Eigen::Vector3d& p, double yaw = 0.0,
+                             const Eigen::Vector3d& v = Eigen::Vector3d::Zero()) {
+  quad_core::VehicleState s;
   s.t_s = t;
   s.p_world_body = p;
   s.v_world = v;
@@ -341,7 +341,7 @@ TEST(TrackerManager, ReAnchorResetsTheIntegralAndTheDirectionOfTravelYaw) {
   double prev = -2.0;
   for (int i = 0; i < 200; ++i) {
     const ControlStep s = f.Step();
-    EXPECT_LE(std::fabs(WrapAngle(s.ref.yaw_rad - prev)), max_step + 1e-9) << i;
+    EXPECT_LE(std::fabs(quad_core::WrapAngle(s.ref.yaw_rad - prev)), max_step + 1e-9) << i;
     prev = s.ref.yaw_rad;
   }
   EXPECT_GT(prev, -2.0);  // turning towards 0 (east), the short way

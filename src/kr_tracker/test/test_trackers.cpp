@@ -12,8 +12,8 @@ namespace {
 
 constexpr double kDt = 0.005;
 
-VehicleState StateAt(double t, const Eigen::Vector3d& p) {
-  VehicleState s;
+quad_core::VehicleState StateAt(double t, const Eigen::Vector3d& p) {
+  quad_core::VehicleState s;
   s.t_s = t;
   s.p_world_body = p;
   return s;
@@ -117,7 +117,7 @@ TEST(LineTracker, YawTurnsTheShortWayAcrossPi) {
   for (double t = 0.0; t < 5.0; t += kDt) {
     r = line.Update(StateAt(t, Eigen::Vector3d::Zero()));
     EXPECT_GE(std::fabs(r.yaw_rad), 3.0 - 1e-9);  // never swings through 0
-    max_abs_yaw_change = std::max(max_abs_yaw_change, std::fabs(WrapAngle(r.yaw_rad - prev)));
+    max_abs_yaw_change = std::max(max_abs_yaw_change, std::fabs(quad_core::WrapAngle(r.yaw_rad - prev)));
     prev = r.yaw_rad;
   }
   EXPECT_NEAR(r.yaw_rad, -3.0, 1e-12);
@@ -166,7 +166,7 @@ class BsplineTrackerTest : public ::testing::Test {
 };
 
 TEST_F(BsplineTrackerTest, RejectsEveryMalformedGoalWithItsReason) {
-  const VehicleState s = StateAt(10.0, Eigen::Vector3d(0, 0, 1));
+  const quad_core::VehicleState s = StateAt(10.0, Eigen::Vector3d(0, 0, 1));
   const double nan = std::numeric_limits<double>::quiet_NaN();
   const double inf = std::numeric_limits<double>::infinity();
   auto reason = [&](const BsplineGoalSpec& g) { return tracker_.AddGoal(1, g, 10.0, s); };
@@ -217,7 +217,7 @@ TEST_F(BsplineTrackerTest, RejectsEveryMalformedGoalWithItsReason) {
 TEST_F(BsplineTrackerTest, FollowsTheSplineFromItsStartTimeAndReportsSuccessTimeAndDistance) {
   const BsplineGoalSpec spec = StraightGoal(10.5);
   ASSERT_EQ(tracker_.AddGoal(42, spec, 10.0, StateAt(10.0, p_)), "");
-  const NonUniformBspline ref(spec.pos_pts, 3, spec.knots);
+  const quad_core::NonUniformBspline ref(spec.pos_pts, 3, spec.knots);
   // Before start_time: holding the activation point.
   PositionReference r = FlyUntil(10.5);
   EXPECT_TRUE(r.p_world.isApprox(Eigen::Vector3d(0, 0, 1)));
@@ -251,7 +251,7 @@ TEST_F(BsplineTrackerTest, NewerGoalReplacesTheRunningOneAtItsStartTime) {
   FlyUntil(11.0);
   ASSERT_EQ(tracker_.running_goal().value_or(0), 1u);
   // Goal 2: starts at 11.5 from where goal 1 will be then, going up.
-  const NonUniformBspline g1(StraightGoal(10.0).pos_pts, 3, StraightGoal(10.0).knots);
+  const quad_core::NonUniformBspline g1(StraightGoal(10.0).pos_pts, 3, StraightGoal(10.0).knots);
   BsplineGoalSpec spec2 = StraightGoal(11.5);
   const Eigen::Vector3d p_switch = g1.Evaluate(g1.tmin() + 1.5);
   for (int i = 0; i < spec2.pos_pts.rows(); ++i)
@@ -331,7 +331,7 @@ TEST_F(BsplineTrackerTest, YawFollowsYawPointsWhenGivenElseTravelDirectionWithRa
   const PositionReference r = FlyUntil(t0 + 0.75 + kDt / 2);
   Eigen::MatrixXd yaw_pts(6, 1);
   yaw_pts << 0.0, 0.2, 0.6, 1.0, 1.2, 1.4;
-  const auto yaw = NonUniformBspline::Uniform(yaw_pts, 3, 0.5, 0.0);
+  const auto yaw = quad_core::NonUniformBspline::Uniform(yaw_pts, 3, 0.5, 0.0);
   const double tau = (t_ - kDt) - t0;
   EXPECT_NEAR(r.yaw_rad, yaw.Evaluate(tau)(0), 1e-12);
   EXPECT_NEAR(r.yaw_rate_radps, yaw.Derivative().Evaluate(tau)(0), 1e-12);

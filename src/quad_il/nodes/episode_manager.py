@@ -39,6 +39,7 @@ from quad_il.collection.episodes import (
     plan_episode,
 )
 from quad_il.lockstep import ControllerGoal, FrameGate, Interrupted, OdometryHistory, TrackerGoto, wait_until
+from quad_il.ros_params import MissingParameterError, require_param
 from quad_msgs.msg import EpisodeStatus, PlanTiming
 from quad_msgs.srv import ResetEpisode
 
@@ -46,6 +47,7 @@ GROUND_Z_M = 0.125  # the vehicle's collision box half height: the start rests o
 TAKEOFF_TOLERANCE_M = 0.15
 TAKEOFF_MAX_SPEED_MPS = 0.3
 WALL_WAIT_S = 30.0  # wall-time limit of any wait on another node
+LAUNCH_FILES = "launch/collect.launch or launch/il_sim.launch"  # where this node's parameters are set
 
 
 class EpisodeManager:
@@ -55,30 +57,32 @@ class EpisodeManager:
             for k in ("output_dir", "seeds", "episodes", "max_samples", "episode_timeout_s")
             if rospy.has_param(f"~{k}")
         }
-        if not rospy.has_param("~config"):
-            raise ValueError("the private parameter ~config (path of collect.yaml) is required")
-        self.cfg = manager_config(rospy.get_param("~config"), params)
-        self.lockstep = bool(rospy.get_param("~lockstep", False))
-        self.consumer = str(rospy.get_param("~frame_ack_consumer", "episode_manager"))
-        self.planner_consumer = str(rospy.get_param("~planner_consumer", "fast_planner"))
-        self.tracker_node = str(rospy.get_param("~tracker_node", "/kr_tracker"))
-        odom_period_s = float(rospy.get_param("~odom_period_s", 0.005))
+        self.cfg = manager_config(require_param("~config", LAUNCH_FILES), params)
+        self.lockstep = bool(require_param("~lockstep", LAUNCH_FILES))
+        self.consumer = str(require_param("~frame_ack_consumer", LAUNCH_FILES))
+        self.planner_consumer = str(require_param("~planner_consumer", LAUNCH_FILES))
+        # A node name relative to this node's namespace (the tracker beside it), resolved for the master.
+        self.tracker_node = rospy.resolve_name(str(require_param("~tracker_node", LAUNCH_FILES)))
+        odom_period_s = float(require_param("~odom_period_s", LAUNCH_FILES))
+        # Topic names as the tracker's bus info reports them (resolved in this node's namespace).
+        self._odom_topic = rospy.resolve_name("odom")
+        self._cmd_topic = rospy.resolve_name("so3_cmd")
         self._lock = threading.Lock()
         self._cv = threading.Condition(self._lock)
         self._status: EpisodeStatus | None = None
         self._successes: list[float] = []  # stamps of successful plans (= records)
         self.odom = OdometryHistory(odom_period_s, wall_wait_s=WALL_WAIT_S)
         self.goto = TrackerGoto(self.lockstep, odom_period_s, WALL_WAIT_S)
-        rospy.Subscriber("/sim/status", EpisodeStatus, self._on_status, queue_size=10)
-        rospy.Subscriber("/planner/timing", PlanTiming, self._on_timing, queue_size=100)
+        rospy.Subscriber("sim/status", EpisodeStatus, self._on_status, queue_size=10)
+        rospy.Subscriber("planner/timing", PlanTiming, self._on_timing, queue_size=100)
         # The planner acknowledges frames and answers goals in either time mode: always waited for.
-        self.goal = ControllerGoal(self.planner_consumer, "/planner/status", True, WALL_WAIT_S)
+        self.goal = ControllerGoal(self.planner_consumer, "planner/status", True, WALL_WAIT_S)
         self.clock_pub = rospy.Publisher("/clock", Clock, queue_size=1) if self.lockstep else None
         self.frames = FrameGate(self.consumer, self.lockstep, WALL_WAIT_S)
-        rospy.loginfo("episode_manager: waiting for /sim/reset and /tracker/goto")
-        rospy.wait_for_service("/sim/reset")
-        rospy.wait_for_service("/tracker/goto")
-        self.reset_srv = rospy.ServiceProxy("/sim/reset", ResetEpisode)
+        rospy.loginfo("episode_manager: waiting for sim/reset and tracker/goto")
+        rospy.wait_for_service("sim/reset")
+        rospy.wait_for_service("tracker/goto")
+        self.reset_srv = rospy.ServiceProxy("sim/reset", ResetEpisode)
         self.log = EpisodeLog(f"{self.cfg.output_dir}/episodes.csv")
         self.resumed_at = 0  # finished episodes found in episodes.csv at start (a resumed run)
 
@@ -129,13 +133,13 @@ class EpisodeManager:
             except (OSError, xmlrpc.client.Error):
                 continue
             # roscpp: [id, peer, direction, transport, topic, connected, ...]
-            odom_in = any(c[2] == "i" and c[4] == "/odom" and c[5] for c in bus)
-            cmd_out = any(c[2] == "o" and c[4] == "/so3_cmd" for c in bus)
+            odom_in = any(c[2] == "i" and c[4] == self._odom_topic and c[5] for c in bus)
+            cmd_out = any(c[2] == "o" and c[4] == self._cmd_topic for c in bus)
             # /clock from the simulator and from this node (inbound connections are to publisher URIs).
             clock_in = sum(1 for c in bus if c[2] == "i" and c[4] == "/clock") >= 2
             if odom_in and (cmd_out or not self.lockstep) and (clock_in or not self.lockstep):
                 break
-        rospy.wait_for_service("/tracker/goto", timeout=WALL_WAIT_S)
+        rospy.wait_for_service("tracker/goto", timeout=WALL_WAIT_S)
         if self.lockstep and self.frames.held is not None:
             # The held simulator publishes no /clock: give the new tracker the current sim time (the held
             # frame's stamp, the last /clock the simulator published, so a repeat for every other node) before
@@ -317,7 +321,7 @@ def main() -> int:
     rospy.init_node("episode_manager")
     try:
         manager = EpisodeManager()
-    except (ValueError, FileNotFoundError) as exc:
+    except (ValueError, FileNotFoundError, MissingParameterError) as exc:
         rospy.logfatal(f"episode_manager: {exc}")
         print(f"episode_manager: error: {exc}", file=sys.stderr, flush=True)
         return 2

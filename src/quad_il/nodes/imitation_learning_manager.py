@@ -6,13 +6,8 @@ Thin entry point; the logic is quad_il.manager (docs/imitation_learning.md). Run
 """
 
 import sys
-from pathlib import Path
 
-try:
-    from quad_il.manager.cli import main
-except ImportError:  # not built/sourced: use the package from the source tree next to this script
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
-    from quad_il.manager.cli import main
+from quad_il.manager.cli import main  # installed in the venv (scripts/setup.sh) and in the devel space
 
 if __name__ == "__main__":
     sys.exit(main())

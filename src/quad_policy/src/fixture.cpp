@@ -32,12 +32,12 @@ NpyArray Load(const std::string& dir, const char* name, const std::vector<std::s
 CameraModel DecisionFixture::Camera(std::size_t i) const {
   const RecordedFrame& f = frames.at(i);
   CameraModel c;
-  c.width = f.depth.width;
-  c.height = f.depth.height;
-  c.fx = fx;
-  c.fy = fy;
-  c.cx = cx;
-  c.cy = cy;
+  c.intrinsics.width = f.depth.width;
+  c.intrinsics.height = f.depth.height;
+  c.intrinsics.fx = fx;
+  c.intrinsics.fy = fy;
+  c.intrinsics.cx = cx;
+  c.intrinsics.cy = cy;
   Eigen::Isometry3d T_world_body = Eigen::Isometry3d::Identity();
   T_world_body.linear() = f.state.q_world_body.normalized().toRotationMatrix();
   T_world_body.translation() = f.state.p_world_body;
@@ -73,7 +73,7 @@ DecisionFixture ReadDecisionFixture(const std::string& dir) {
     f.stamp_s = stamp[i];
     f.depth.width = static_cast<int>(w);
     f.depth.height = static_cast<int>(h);
-    f.depth.data_m.assign(d.begin() + i * h * w, d.begin() + (i + 1) * h * w);
+    f.depth.depth_m.assign(d.begin() + i * h * w, d.begin() + (i + 1) * h * w);
     f.state.p_world_body = Eigen::Vector3d(p[3 * i], p[3 * i + 1], p[3 * i + 2]);
     f.state.v_world = Eigen::Vector3d(v[3 * i], v[3 * i + 1], v[3 * i + 2]);
     f.state.q_world_body = Eigen::Quaterniond(q[4 * i + 3], q[4 * i], q[4 * i + 1], q[4 * i + 2]);  // xyzw
@@ -91,10 +91,10 @@ void WriteDecisionFixture(const std::string& dir, const DecisionFixture& fixture
   std::vector<double> stamp, p, v, q, g;
   for (const RecordedFrame& f : fixture.frames) {
     if (f.depth.height != h || f.depth.width != w ||
-        f.depth.data_m.size() != static_cast<std::size_t>(h) * static_cast<std::size_t>(w)) {
+        f.depth.depth_m.size() != static_cast<std::size_t>(h) * static_cast<std::size_t>(w)) {
       throw std::invalid_argument("fixture frames must all have the same image size");
     }
-    depth.insert(depth.end(), f.depth.data_m.begin(), f.depth.data_m.end());
+    depth.insert(depth.end(), f.depth.depth_m.begin(), f.depth.depth_m.end());
     stamp.push_back(f.stamp_s);
     for (int j = 0; j < 3; ++j) {
       p.push_back(f.state.p_world_body[j]);

@@ -53,45 +53,6 @@ void ValidateSafetyConfig(const SafetyConfig& cfg) {
     throw std::invalid_argument("safety.collision_min_pixels must be >= 1, got " +
                                 std::to_string(cfg.collision_min_pixels));
   }
-  if (cfg.memory_frames < 0 || cfg.memory_frames > 64) {
-    throw std::invalid_argument("safety.memory_frames must be in [0, 64], got " +
-                                std::to_string(cfg.memory_frames));
-  }
-  if (!(std::isfinite(cfg.memory_spacing_s) && cfg.memory_spacing_s >= 0.0)) {
-    throw std::invalid_argument("safety.memory_spacing_s must be >= 0, got " +
-                                std::to_string(cfg.memory_spacing_s));
-  }
-}
-
-DepthMemory::DepthMemory(int max_frames, double spacing_s) : max_frames_(max_frames), spacing_s_(spacing_s) {
-  if (max_frames < 0 || !(std::isfinite(spacing_s) && spacing_s >= 0.0)) {
-    throw std::invalid_argument(
-        "depth memory: memory_frames must be >= 0 and memory_spacing_s finite and >= 0, got " +
-        std::to_string(max_frames) + " and " + std::to_string(spacing_s));
-  }
-}
-
-bool DepthMemory::Add(double stamp_s, const DepthImageView& depth, const CameraModel& camera) {
-  if (max_frames_ == 0) return false;
-  if (depth.data == nullptr || depth.width <= 0 || depth.height <= 0) {
-    throw std::invalid_argument("depth memory: the frame to keep has no pixels");
-  }
-  if (!frames_.empty() && stamp_s < frames_.front().stamp_s) frames_.clear();  // time went back
-  if (!frames_.empty() && stamp_s - frames_.front().stamp_s < spacing_s_ - 1e-9) return false;
-  DepthFrame frame;
-  frame.stamp_s = stamp_s;
-  frame.camera = camera;
-  frame.image.width = depth.width;
-  frame.image.height = depth.height;
-  frame.image.data_m.resize(static_cast<std::size_t>(depth.width) * depth.height);
-  for (int v = 0; v < depth.height; ++v) {
-    const float* row = depth.data + static_cast<std::size_t>(v) * depth.row_stride;
-    std::copy(row, row + depth.width,
-              frame.image.data_m.begin() + static_cast<std::ptrdiff_t>(v) * depth.width);
-  }
-  if (static_cast<int>(frames_.size()) >= max_frames_) frames_.resize(max_frames_ - 1);
-  frames_.insert(frames_.begin(), std::move(frame));
-  return true;
 }
 
 namespace {
@@ -127,95 +88,45 @@ std::string Printf(const char* fmt, Args... args) {
   return buf;
 }
 
-void CheckFrame(const DepthImageView& depth, const CameraModel& camera, const std::string& what) {
-  if (depth.data == nullptr || depth.width != camera.width || depth.height != camera.height) {
-    throw std::invalid_argument(what + ": depth image and camera model sizes differ");
+void CheckFrame(const DepthImageView& depth, const quad_core::CameraIntrinsics& k) {
+  if (depth.data == nullptr || depth.width != k.width || depth.height != k.height) {
+    throw std::invalid_argument("depth frame: depth image and camera model sizes differ");
   }
-  if (!(camera.fx > 0.0 && camera.fy > 0.0)) {
-    throw std::invalid_argument(what + ": camera focal lengths must be > 0");
-  }
+  if (!(k.fx > 0.0 && k.fy > 0.0))
+    throw std::invalid_argument("depth frame: camera focal lengths must be > 0");
 }
 
 // Whether a point (camera frame) is in front of the camera and projects inside the image.
-bool CentreInView(const Eigen::Vector3d& c, const CameraModel& camera) {
+bool CentreInView(const Eigen::Vector3d& c, const quad_core::CameraIntrinsics& k) {
   if (!(c.z() > 0.0)) return false;
-  const double u = camera.cx + camera.fx * c.x() / c.z();
-  const double v = camera.cy + camera.fy * c.y() / c.z();
-  return u >= 0.0 && u <= camera.width - 1.0 && v >= 0.0 && v <= camera.height - 1.0;
+  const double u = k.cx + k.fx * c.x() / c.z();
+  const double v = k.cy + k.fy * c.y() / c.z();
+  return u >= 0.0 && u <= k.width - 1.0 && v >= 0.0 && v <= k.height - 1.0;
 }
-
-// The cameras a sample can be judged in: frame 0 the latest, k >= 1 the k-th remembered (newest first).
-class Views {
- public:
-  Views(const CameraModel& latest, const std::vector<DepthFrame>& memory) {
-    cameras_.reserve(memory.size() + 1);
-    cameras_.push_back(&latest);
-    for (const DepthFrame& f : memory) cameras_.push_back(&f.camera);
-    T_camera_world_.reserve(cameras_.size());
-    for (const CameraModel* c : cameras_) T_camera_world_.push_back(c->T_world_camera.inverse());
-  }
-  int size() const { return static_cast<int>(cameras_.size()); }
-  const CameraModel& camera(int k) const { return *cameras_[k]; }
-  Eigen::Vector3d ToCamera(int k, const Eigen::Vector3d& p_world) const {
-    return T_camera_world_[k] * p_world;
-  }
-  // The first frame whose view holds the point (the latest, else the newest remembered); -1: none.
-  int Showing(const Eigen::Vector3d& p_world) const {
-    for (int k = 0; k < size(); ++k) {
-      if (CentreInView(ToCamera(k, p_world), camera(k))) return k;
-    }
-    return -1;
-  }
-
- private:
-  std::vector<const CameraModel*> cameras_;
-  std::vector<Eigen::Isometry3d> T_camera_world_;
-};
 
 }  // namespace
 
 DepthCollision FindDepthCollision(const std::vector<Eigen::Vector3d>& samples_world, double radius_m,
-                                  int min_pixels, const DepthImageView& depth, const CameraModel& camera,
-                                  const std::vector<DepthFrame>& memory) {
-  CheckFrame(depth, camera, "latest frame");
-  std::vector<DepthImageView> depths{depth};
-  for (std::size_t k = 0; k < memory.size(); ++k) {
-    depths.push_back(memory[k].image.view());
-    CheckFrame(depths.back(), memory[k].camera, "remembered frame " + std::to_string(k + 1));
-  }
-  const Views views(camera, memory);
-  std::vector<std::vector<double>> dxs(views.size()), dys(views.size());  // per frame, filled when first used
+                                  int min_pixels, const DepthImageView& depth, const CameraModel& camera) {
+  const quad_core::CameraIntrinsics& k = camera.intrinsics;
+  CheckFrame(depth, k);
+  const Eigen::Isometry3d T_camera_world = camera.T_world_camera.inverse();
+  std::vector<double> dx(k.width), dy(k.height);
+  for (int u = 0; u < k.width; ++u) dx[u] = (u - k.cx) / k.fx;
+  for (int v = 0; v < k.height; ++v) dy[v] = (v - k.cy) / k.fy;
   const double r2 = radius_m * radius_m;
-  DepthCollision out;
   for (std::size_t j = 0; j < samples_world.size(); ++j) {
-    const Eigen::Vector3d& p = samples_world[j];
-    if (views.ToCamera(0, p).squaredNorm() <= r2) {
-      continue;  // the sphere holds the latest camera: the vehicle's own place
-    }
-    // The judging frame: the first that shows the sample's centre, else the latest (which judges the part of
-    // the sphere it sees).
-    const int k = memory.empty() ? 0 : std::max(0, views.Showing(p));
-    const CameraModel& cam = views.camera(k);
-    const DepthImageView& img = depths[k];
-    const Eigen::Vector3d c = views.ToCamera(k, p);
+    const Eigen::Vector3d c = T_camera_world * samples_world[j];
     const double c2 = c.squaredNorm();
-    if (c2 <= r2) continue;  // the sphere holds that frame's camera: where the vehicle was, free
+    if (c2 <= r2) continue;  // the sphere holds the camera: the vehicle's own place
     int u0, u1, v0, v1;
-    if (!AxisRange(c.x(), c.z(), radius_m, cam.fx, cam.cx, cam.width, &u0, &u1)) continue;
-    if (!AxisRange(c.y(), c.z(), radius_m, cam.fy, cam.cy, cam.height, &v0, &v1)) continue;
-    std::vector<double>& dx = dxs[k];
-    std::vector<double>& dy = dys[k];
-    if (dx.empty()) {
-      dx.resize(cam.width);
-      dy.resize(cam.height);
-      for (int u = 0; u < cam.width; ++u) dx[u] = (u - cam.cx) / cam.fx;
-      for (int v = 0; v < cam.height; ++v) dy[v] = (v - cam.cy) / cam.fy;
-    }
+    if (!AxisRange(c.x(), c.z(), radius_m, k.fx, k.cx, k.width, &u0, &u1)) continue;
+    if (!AxisRange(c.y(), c.z(), radius_m, k.fy, k.cy, k.height, &v0, &v1)) continue;
     int count = 0;
     DepthCollision hit;
     for (int v = v0; v <= v1; ++v) {
       for (int u = u0; u <= u1; ++u) {
-        double d = img.at(v, u);
+        double d = depth.at(v, u);
         if (std::isnan(d) || d == std::numeric_limits<double>::infinity()) continue;
         if (d < 0.0) d = 0.0;  // -inf: nearer than the camera's minimum range
         // Ray t (dx, dy, 1), t = depth along the optical axis: |t dir - c|^2 = r^2.
@@ -239,18 +150,16 @@ DepthCollision FindDepthCollision(const std::vector<Eigen::Vector3d>& samples_wo
       hit.collides = true;
       hit.sample_index = static_cast<int>(j);
       hit.occupied_pixels = count;
-      hit.frame = k;
-      if (k > 0) hit.frame_stamp_s = memory[k - 1].stamp_s;
       return hit;
     }
   }
-  return out;
+  return DepthCollision{};
 }
 
 std::vector<double> SafetySampleTimes(const UniformBspline& traj, const SafetyConfig& cfg, double from_s) {
   const double duration = traj.duration_s() - from_s;
   const double horizon = cfg.check_horizon_s > 0.0 ? std::min(cfg.check_horizon_s, duration) : duration;
-  // Integer steps (identical in the Python twin): from_s + j * dt for j = 0 .. n, then the horizon if not
+  // Integer steps (no accumulated rounding): from_s + j * dt for j = 0 .. n, then the horizon if not
   // reached.
   const long n = static_cast<long>(std::floor(horizon / cfg.sample_dt_s + 1e-9));
   std::vector<double> times;
@@ -261,21 +170,20 @@ std::vector<double> SafetySampleTimes(const UniformBspline& traj, const SafetyCo
 }
 
 bool TrajectoryInView(const UniformBspline& traj, const CameraModel& camera, const SafetyConfig& cfg,
-                      const std::vector<DepthFrame>& memory, double from_s) {
-  const Views views(camera, memory);
+                      double from_s) {
+  const Eigen::Isometry3d T_camera_world = camera.T_world_camera.inverse();
   const double r2 = cfg.vehicle_radius_m * cfg.vehicle_radius_m;
   for (double t : SafetySampleTimes(traj, cfg, from_s)) {
-    const Eigen::Vector3d p = traj.Position(t);
-    if (views.ToCamera(0, p).squaredNorm() <= r2)
-      continue;  // the vehicle's own place, as in FindDepthCollision
-    if (views.Showing(p) < 0) return false;
+    const Eigen::Vector3d c = T_camera_world * traj.Position(t);
+    if (c.squaredNorm() <= r2) continue;  // the vehicle's own place, as in FindDepthCollision
+    if (!CentreInView(c, camera.intrinsics)) return false;
   }
   return true;
 }
 
 bool RestIsClear(const UniformBspline& traj, double now_s, double min_rest_s,
                  const Eigen::Vector3d& p_world_vehicle, const DepthImageView& depth,
-                 const CameraModel& camera, const SafetyConfig& cfg, const std::vector<DepthFrame>& memory) {
+                 const CameraModel& camera, const SafetyConfig& cfg) {
   const double elapsed = now_s - traj.start_time_s;
   if (!(std::isfinite(elapsed) && elapsed >= 0.0 && traj.duration_s() - elapsed >= min_rest_s)) return false;
   if (!((traj.Position(elapsed) - p_world_vehicle).norm() <= cfg.max_start_error_m)) return false;
@@ -284,14 +192,14 @@ bool RestIsClear(const UniformBspline& traj, double now_s, double min_rest_s,
   std::vector<Eigen::Vector3d> samples;
   samples.reserve(times.size());
   for (double t : times) samples.push_back(traj.Position(t));
-  return !FindDepthCollision(samples, cfg.vehicle_radius_m, cfg.collision_min_pixels, depth, camera, memory)
+  return !FindDepthCollision(samples, cfg.vehicle_radius_m, cfg.collision_min_pixels, depth, camera)
               .collides &&
-         TrajectoryInView(traj, camera, cfg, memory, elapsed);
+         TrajectoryInView(traj, camera, cfg, elapsed);
 }
 
 SafetyResult CheckTrajectory(const UniformBspline& traj, const Eigen::Vector3d& p_world_vehicle,
-                             const DepthImageView* depth, const CameraModel& camera, const SafetyConfig& cfg,
-                             const std::vector<DepthFrame>& memory) {
+                             const DepthImageView* depth, const CameraModel& camera,
+                             const SafetyConfig& cfg) {
   SafetyResult res;
   for (int i = 0; i < traj.ctrl_world.rows(); ++i) {
     if (!traj.ctrl_world.row(i).allFinite()) {
@@ -357,35 +265,20 @@ SafetyResult CheckTrajectory(const UniformBspline& traj, const Eigen::Vector3d& 
     samples.reserve(times.size());
     for (double t : times) samples.push_back(traj.Position(t));
     const DepthCollision hit =
-        FindDepthCollision(samples, cfg.vehicle_radius_m, cfg.collision_min_pixels, *depth, camera, memory);
+        FindDepthCollision(samples, cfg.vehicle_radius_m, cfg.collision_min_pixels, *depth, camera);
     if (hit.collides) {
       res.verdict = SafetyVerdict::kCollisionInDepth;
       res.value = times[hit.sample_index];
-      const std::string where =
-          hit.frame == 0 ? std::string()
-                         : Printf(" of the remembered frame %d (t = %.3f s)", hit.frame, hit.frame_stamp_s);
       res.reason = Printf(
           "collision_in_depth: at t = %.3f s the vehicle sphere (r = %.2f m) reaches %.3f m deep along "
-          "pixel (%d, %d)%s whose measured depth is %.3f m (%d occupied pixels)",
-          res.value, cfg.vehicle_radius_m, hit.sphere_depth_m, hit.u, hit.v, where.c_str(),
-          hit.measured_depth_m, hit.occupied_pixels);
+          "pixel (%d, %d) whose measured depth is %.3f m (%d occupied pixels)",
+          res.value, cfg.vehicle_radius_m, hit.sphere_depth_m, hit.u, hit.v, hit.measured_depth_m,
+          hit.occupied_pixels);
       return res;
     }
   }
   res.reason = "accepted";
   return res;
-}
-
-double NearestDepth(const DepthImageView& depth) {
-  double nearest = std::numeric_limits<double>::infinity();
-  for (int v = 0; v < depth.height; ++v) {
-    for (int u = 0; u < depth.width; ++u) {
-      const double d = depth.at(v, u);
-      if (std::isnan(d)) continue;
-      nearest = std::min(nearest, std::max(d, 0.0));  // -inf: too near, counts as 0
-    }
-  }
-  return nearest;
 }
 
 }  // namespace quad_policy

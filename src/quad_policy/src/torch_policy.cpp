@@ -153,6 +153,18 @@ const std::string& TorchPolicy::path() const { return impl_->path; }
 const std::string& TorchPolicy::metadata_json() const { return impl_->json; }
 bool TorchPolicy::has_forward_net() const { return impl_->has_forward_net; }
 
+void TorchPolicy::WarmUp(int passes) const {
+  const PolicyMeta& m = meta();
+  const std::vector<float> depth_x(static_cast<std::size_t>(m.input_height) * m.input_width, 0.5f);
+  StateVector s{};
+  s[9] = 1.0f;  // the identity quaternion's w
+  try {
+    for (int i = 0; i < passes; ++i) Run(depth_x, s, VehicleState(), Eigen::Vector3d::Zero());
+  } catch (const std::exception& e) {
+    throw std::runtime_error(path() + ": the policy's forward pass fails on a test input: " + e.what());
+  }
+}
+
 std::vector<float> TorchPolicy::Run(const std::vector<float>& depth_x, const StateVector& state_x,
                                     const VehicleState& state, const Eigen::Vector3d& goal_world) const {
   const PolicyMeta& m = impl_->meta;

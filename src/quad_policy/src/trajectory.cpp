@@ -8,6 +8,12 @@ namespace quad_policy {
 
 namespace {
 
+// Evaluated in matrix form here, not through quad_core::NonUniformBspline (issue 31 tried it): that class
+// refuses non-finite control points when it is built, while the safety layer must judge network outputs that
+// hold NaN/Inf and refuse them with a verdict (non_finite_output) rather than an exception; TrajectoryInView
+// and policy_replay evaluate such plans too. With NonUniformBspline the parity fixture's replay stopped at
+// its NaN trajectory instead of giving the decisions recorded before the change (/tmp/baseline, issue 31
+// report).
 const Eigen::Matrix4d& CubicMatrix() {
   // Uniform cubic B-spline in matrix form (Qin 2000): p(u) = [1 u u^2 u^3] M [c_k .. c_k+3]^T.
   static const Eigen::Matrix4d m =
@@ -89,7 +95,8 @@ UniformBspline PolicyTrajectory(const CtrlPoints& ctrl_world, const PolicyMeta& 
 
 namespace {
 
-// p(t) = p0 + v0 T / 3 (1 - (1 - t/T)^3) + b (3 (t/T)^2 - 2 (t/T)^3): one cubic, so the uniform cubic
+// p(t) = p0 + v0 T / 3 (1 - (1 - t/T)^3) + b (3 (t/T)^2 - 2 (t/T)^3) (b = 0: braking; else the final
+// approach): one cubic, so the uniform cubic
 // B-spline with K = 4 and knot interval T has it exactly with control points P(tau_i) - T^2 / 6 P''(tau_i) at
 // the Greville abscissae tau_i = (i - 1) T (both extended beyond [0, T] as the polynomial).
 UniformBspline StopCubic(const Eigen::Vector3d& p0, const Eigen::Vector3d& v0, const Eigen::Vector3d& b,
@@ -133,18 +140,6 @@ UniformBspline BrakingTrajectory(const Eigen::Vector3d& p0_world, const Eigen::V
   return StopCubic(p0_world, v0_world, Eigen::Vector3d::Zero(), duration, start_time_s);
 }
 
-UniformBspline TurningStop(const Eigen::Vector3d& p0_world, const Eigen::Vector3d& v0_world,
-                           const Eigen::Vector3d& backoff_world, double yaw0_rad, double rate_radps,
-                           double max_decel_mps2, double min_duration_s, double start_time_s) {
-  CheckStopInputs(p0_world, v0_world, max_decel_mps2, min_duration_s, start_time_s);
-  if (!backoff_world.allFinite()) throw std::invalid_argument("turning stop: non-finite back-off");
-  const double duration = std::max({2.0 * v0_world.norm() / max_decel_mps2, min_duration_s,
-                                    std::sqrt(6.0 * backoff_world.norm() / max_decel_mps2)});
-  UniformBspline s = StopCubic(p0_world, v0_world, backoff_world, duration, start_time_s);
-  SetConstantYawRate(&s, yaw0_rad, rate_radps);
-  return s;
-}
-
 std::optional<UniformBspline> FinalApproach(const Eigen::Vector3d& p0_world, const Eigen::Vector3d& v0_world,
                                             const Eigen::Vector3d& goal_world, double max_acc_mps2,
                                             double min_duration_s, double start_time_s) {
@@ -162,20 +157,6 @@ std::optional<UniformBspline> FinalApproach(const Eigen::Vector3d& p0_world, con
     }
   }
   return std::nullopt;
-}
-
-void SetConstantYawRate(UniformBspline* s, double yaw0_rad, double rate_radps) {
-  if (!std::isfinite(yaw0_rad) || !std::isfinite(rate_radps)) {
-    throw std::invalid_argument("SetConstantYawRate: non-finite yaw or rate");
-  }
-  if (!(s->knot_dt_s > 0.0) || s->num_ctrl_pts() < 4) {
-    throw std::invalid_argument(
-        "SetConstantYawRate: the spline needs knot_dt_s > 0 and at least 4 control points");
-  }
-  s->yaw_ctrl.resize(static_cast<std::size_t>(s->num_ctrl_pts()));
-  for (int i = 0; i < s->num_ctrl_pts(); ++i) {
-    s->yaw_ctrl[static_cast<std::size_t>(i)] = yaw0_rad + rate_radps * (i - 1) * s->knot_dt_s;
-  }
 }
 
 }  // namespace quad_policy

@@ -1,7 +1,7 @@
 // Policy metadata, config/policy.yaml, .npy and fixture round trips, and their error messages.
 #include <gtest/gtest.h>
 
-#include <quad_common/strict_yaml.h>
+#include <quad_core/strict_yaml.h>
 
 #include <unistd.h>
 
@@ -177,16 +177,97 @@ TEST(OrderedPlans, MostConfidentFirstTiesByIndexNanLast) {
 }
 
 TEST(PolicyNodeConfig, TheRepositoryConfigLoads) {
+  // config/policy.yaml holds every default: the configuration `make eval`, `make demo` and infer.launch fly.
   const PolicyNodeConfig c = LoadPolicyNodeConfig(QUAD_IL_CONFIG_DIR "/policy.yaml");
   EXPECT_EQ(c.num_threads, 1);
+  EXPECT_EQ(c.replan_rate_hz, 10.0);
   EXPECT_EQ(c.lockstep_consumer, "policy");
+  EXPECT_EQ(c.odom_period_s, 0.005);
   EXPECT_EQ(c.refusal.action, RefusalAction::kStop);
   EXPECT_TRUE(c.safety.enabled);
   EXPECT_NO_THROW(ValidateSafetyConfig(c.safety));
-  EXPECT_TRUE(c.recovery.goal_yaw_offsets_deg.empty());  // the recovery is off by default
+  EXPECT_EQ(c.recovery.goal_yaw_offsets_deg, (std::vector<double>{20, -20, 40, -40, 60, -60}));
+  EXPECT_EQ(c.recovery.final_approach_m, 1.5);
+  EXPECT_EQ(c.keeping.commit_s, 0.3);
+  EXPECT_TRUE(c.keeping.on_refusal);
+  EXPECT_EQ(c.safety.vehicle_radius_m, 0.40);
+}
+
+TEST(PolicyNodeConfig, OverlaysChangeOnlyTheirKeys) {
+  const PolicyNodeConfig base = LoadPolicyNodeConfig(QUAD_IL_CONFIG_DIR "/policy.yaml");
   const PolicyNodeConfig r = LoadPolicyNodeConfig(QUAD_IL_CONFIG_DIR "/policy_recovery.yaml");
-  EXPECT_EQ(r.recovery.goal_yaw_offsets_deg, (std::vector<double>{20, -20, 40, -40, 60, -60}));
+  EXPECT_EQ(r.recovery.goal_yaw_offsets_deg, base.recovery.goal_yaw_offsets_deg);
   EXPECT_EQ(r.safety.vehicle_radius_m, 0.40);
+  EXPECT_EQ(r.replan_rate_hz, 0.0);
+  EXPECT_EQ(r.recovery.final_approach_m, 0.0);
+  EXPECT_EQ(r.keeping.commit_s, 0.0);
+  EXPECT_FALSE(r.keeping.on_refusal);
+  const PolicyNodeConfig r10 = LoadPolicyNodeConfig(QUAD_IL_CONFIG_DIR "/policy_recovery_r10.yaml");
+  EXPECT_EQ(r10.replan_rate_hz, 10.0);  // an overlay of policy_recovery.yaml: a chain
+  EXPECT_EQ(r10.keeping.commit_s, 0.0);
+  const PolicyNodeConfig keep = LoadPolicyNodeConfig(QUAD_IL_CONFIG_DIR "/policy_keep.yaml");
+  EXPECT_EQ(keep.keeping.commit_s, base.keeping.commit_s);  // the default under its measured name
+  EXPECT_EQ(keep.recovery.final_approach_m, base.recovery.final_approach_m);
+}
+
+class TempDir : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = std::filesystem::temp_directory_path() /
+           ("quad_policy_test_" + std::to_string(::getpid()) + "_" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    std::filesystem::create_directories(dir_);
+  }
+  void TearDown() override { std::filesystem::remove_all(dir_); }
+  std::string Path(const std::string& name) const { return (dir_ / name).string(); }
+  std::string Write(const std::string& name, const std::string& text) const {
+    std::ofstream(Path(name)) << text;
+    return Path(name);
+  }
+  std::filesystem::path dir_;
+};
+
+using Overlay = TempDir;
+
+TEST_F(Overlay, MergesSectionsKeyByKeyAndReplacesListsAndNamesBadKeys) {
+  Write("base.yaml", "a: 1\nsec:\n  x: [1, 2]\n  y: 2\n");
+  const YAML::Node merged = LoadOverlayTree(Write("o.yaml", "overlay_of: base.yaml\nsec:\n  x: [3]\n"));
+  EXPECT_EQ(merged["a"].as<int>(), 1);
+  EXPECT_EQ(merged["sec"]["x"].as<std::vector<int>>(), (std::vector<int>{3}));
+  EXPECT_EQ(merged["sec"]["y"].as<int>(), 2);
+  EXPECT_FALSE(merged["overlay_of"].IsDefined());
+  const std::string typo =
+      ErrorOf([&] { LoadOverlayTree(Write("t.yaml", "overlay_of: base.yaml\nsec:\n  z: 1\n")); });
+  EXPECT_NE(typo.find("t.yaml (overlay of"), std::string::npos) << typo;
+  EXPECT_NE(typo.find("key 'sec.z' does not exist in the base config"), std::string::npos) << typo;
+  const std::string kind =
+      ErrorOf([&] { LoadOverlayTree(Write("k.yaml", "overlay_of: base.yaml\nsec: 1\n")); });
+  EXPECT_NE(kind.find("key 'sec' is a section in the base config"), std::string::npos) << kind;
+  EXPECT_NE(
+      ErrorOf([&] { LoadOverlayTree(Write("m.yaml", "overlay_of: nowhere.yaml\n")); }).find("cannot open"),
+      std::string::npos);
+  Write("c1.yaml", "overlay_of: c2.yaml\n");
+  Write("c2.yaml", "overlay_of: c1.yaml\n");
+  EXPECT_NE(ErrorOf([&] { LoadOverlayTree(Path("c1.yaml")); }).find("overlay cycle"), std::string::npos);
+}
+
+TEST_F(Overlay, APolicyOverlayLoadsStrictlyAfterTheMerge) {
+  const std::string base = std::string(QUAD_IL_CONFIG_DIR) + "/policy.yaml";
+  const PolicyNodeConfig c =
+      LoadPolicyNodeConfig(Write("p.yaml", "overlay_of: " + base + "\nsafety:\n  max_vel_mps: 2.0\n"));
+  EXPECT_EQ(c.safety.max_vel_mps, 2.0);
+  EXPECT_EQ(c.safety.max_acc_mps2, LoadPolicyNodeConfig(base).safety.max_acc_mps2);
+  EXPECT_NE(
+      ErrorOf([&] {
+        LoadPolicyNodeConfig(Write("q.yaml", "overlay_of: " + base + "\nsafety:\n  max_vel_mps: -2.0\n"));
+      }).find("'safety.max_vel_mps' has value -2"),
+      std::string::npos);
+  // A removed knob is an unknown key, named.
+  EXPECT_NE(ErrorOf([&] {
+              LoadPolicyNodeConfig(
+                  Write("r.yaml", "overlay_of: " + base + "\nrecovery:\n  steer_clearance_m: 1.0\n"));
+            }).find("'recovery.steer_clearance_m' does not exist"),
+            std::string::npos);
 }
 
 std::string RepoConfigWith(const std::string& from, const std::string& to) {
@@ -215,10 +296,23 @@ TEST(PolicyNodeConfig, TyposMissingKeysAndBadValuesAreNamed) {
               PolicyNodeConfigFromString(RepoConfigWith("goal_tolerance_m: 0.5", ""), "c");
             }).find("missing required key 'goal_tolerance_m'"),
             std::string::npos);
+  EXPECT_NE(ErrorOf([] {
+              PolicyNodeConfigFromString(RepoConfigWith("odom_wait_s: 0.2", "odom_wait_s: 0"), "c");
+            }).find("'odom_wait_s' has value 0"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf([] {
+              PolicyNodeConfigFromString(RepoConfigWith("commit_s: 0.3", "commit_s: -1"), "c");
+            }).find("'keeping.commit_s' has value -1"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf([] {
+              PolicyNodeConfigFromString(
+                  RepoConfigWith("final_approach_acc_mps2: 2.0", "final_approach_acc_mps2: 0"), "c");
+            }).find("'recovery.final_approach_acc_mps2' has value 0"),
+            std::string::npos);
 }
 
 TEST(PolicyNodeConfig, RecoveryTurnsAreReadAndBadOnesNamed) {
-  const std::string key = "goal_yaw_offsets_deg: []";
+  const std::string key = "goal_yaw_offsets_deg: [20, -20, 40, -40, 60, -60]";
   const PolicyNodeConfig c =
       PolicyNodeConfigFromString(RepoConfigWith(key, "goal_yaw_offsets_deg: [30, -30.5]"), "c");
   EXPECT_EQ(c.recovery.goal_yaw_offsets_deg, (std::vector<double>{30.0, -30.5}));
@@ -235,125 +329,11 @@ TEST(PolicyNodeConfig, RecoveryTurnsAreReadAndBadOnesNamed) {
               PolicyNodeConfigFromString(RepoConfigWith(key, "goal_yaw_offsets_deg: " + many), "c");
             }).find("17 angles, at most 16"),
             std::string::npos);
-  EXPECT_NE(ErrorOf([&] {
-              PolicyNodeConfigFromString(RepoConfigWith(key, "goal_yaw_offsets_deg: 30"), "c");
-            }).find("recovery.goal_yaw_offsets_deg"),
-            std::string::npos);
-}
-
-TEST(PolicyNodeConfig, SteeringClearanceIsReadAndBadValuesNamed) {
-  EXPECT_EQ(LoadPolicyNodeConfig(QUAD_IL_CONFIG_DIR "/policy.yaml").recovery.steer_clearance_m, 0.0);  // off
-  const auto with = [](const std::string& steer, const std::string& turns) {
-    std::string text = RepoConfigWith("steer_clearance_m: 0.0", "steer_clearance_m: " + steer);
-    const std::string key = "goal_yaw_offsets_deg: []";
-    return text.replace(text.find(key), key.size(), "goal_yaw_offsets_deg: " + turns);
-  };
-  EXPECT_EQ(PolicyNodeConfigFromString(with("0.9", "[20]"), "c").recovery.steer_clearance_m, 0.9);
-  // policy.yaml's vehicle_radius_m is 0.25.
-  EXPECT_NE(ErrorOf([&] { PolicyNodeConfigFromString(with("0.2", "[20]"), "c"); })
-                .find("recovery.steer_clearance_m (0.200000) must be 0 (off) or greater than "
-                      "safety.vehicle_radius_m (0.250000)"),
-            std::string::npos);
-  EXPECT_NE(ErrorOf([&] {
-              PolicyNodeConfigFromString(with("0.9", "[]"), "c");
-            }).find("recovery.goal_yaw_offsets_deg is empty: no turns to steer by"),
-            std::string::npos);
-  EXPECT_NE(ErrorOf([&] {
-              PolicyNodeConfigFromString(with("-1", "[20]"), "c");
-            }).find("recovery.steer_clearance_m"),
-            std::string::npos);
-  // The decider checks the same when built from parts.
-  RecoveryConfig r;
-  r.steer_clearance_m = 0.2;
-  r.goal_yaw_offsets_deg = {20.0};
-  SafetyConfig s;
-  s.vehicle_radius_m = 0.25;
-  EXPECT_NE(ErrorOf([&] { ValidateRecoveryConfig(r, s); }).find("greater than safety.vehicle_radius_m"),
-            std::string::npos);
-}
-
-TEST(PolicyNodeConfig, TurningInPlaceIsReadAndBadValuesNamed) {
-  const PolicyNodeConfig off = LoadPolicyNodeConfig(QUAD_IL_CONFIG_DIR "/policy.yaml");
-  EXPECT_EQ(off.recovery.turn_after_stops, 0);  // off by default
-  const auto with = [](const std::string& after, const std::string& rate) {
-    std::string text = RepoConfigWith("turn_after_stops: 0", "turn_after_stops: " + after);
-    const std::string key = "turn_rate_dps: 45.0";
-    return text.replace(text.find(key), key.size(), "turn_rate_dps: " + rate);
-  };
-  const PolicyNodeConfig c = PolicyNodeConfigFromString(with("15", "30"), "c");
-  EXPECT_EQ(c.recovery.turn_after_stops, 15);
-  EXPECT_EQ(c.recovery.turn_rate_dps, 30.0);
-  EXPECT_NE(ErrorOf([&] {
-              PolicyNodeConfigFromString(with("-1", "45"), "c");
-            }).find("'recovery.turn_after_stops' has value -1"),
-            std::string::npos);
-  EXPECT_NE(ErrorOf([&] {
-              PolicyNodeConfigFromString(with("15", "0"), "c");
-            }).find("'recovery.turn_rate_dps' has value 0"),
-            std::string::npos);
-  EXPECT_NE(ErrorOf([&] {
-              PolicyNodeConfigFromString(with("15", "200"), "c");
-            }).find("recovery.turn_rate_dps must be within (0, 180] deg/s, got 200"),
-            std::string::npos);
-  std::string hover = with("15", "45");
-  hover.replace(hover.find("action: stop"), 12, "action: hover");
-  EXPECT_NE(ErrorOf([&] {
-              PolicyNodeConfigFromString(hover, "c");
-            }).find("recovery.turn_after_stops is set but refusal.action is not 'stop'"),
-            std::string::npos);
-  hover = RepoConfigWith("action: stop", "action: hover");  // off: hover is fine
-  EXPECT_NO_THROW(PolicyNodeConfigFromString(hover, "c"));
-  EXPECT_EQ(c.recovery.turn_clearance_m, 0.8);
-  EXPECT_NE(ErrorOf([&] {
-              PolicyNodeConfigFromString(RepoConfigWith("turn_clearance_m: 0.8", "turn_clearance_m: -1"),
-                                         "c");
-            }).find("'recovery.turn_clearance_m' has value -1"),
-            std::string::npos);
-  EXPECT_EQ(c.recovery.final_approach_m, 0.0);  // off by default
-  EXPECT_EQ(c.recovery.final_approach_acc_mps2, 2.0);
-  const PolicyNodeConfig fa =
-      PolicyNodeConfigFromString(RepoConfigWith("final_approach_m: 0.0", "final_approach_m: 1.5"), "c");
-  EXPECT_EQ(fa.recovery.final_approach_m, 1.5);
-  EXPECT_NE(ErrorOf([&] {
-              PolicyNodeConfigFromString(RepoConfigWith("final_approach_m: 0.0", "final_approach_m: -1"),
-                                         "c");
-            }).find("'recovery.final_approach_m' has value -1"),
-            std::string::npos);
-  EXPECT_NE(ErrorOf([&] {
-              PolicyNodeConfigFromString(
-                  RepoConfigWith("final_approach_acc_mps2: 2.0", "final_approach_acc_mps2: 0"), "c");
-            }).find("'recovery.final_approach_acc_mps2' has value 0"),
-            std::string::npos);
-  EXPECT_EQ(c.keeping.commit_s, 0.0);  // off by default
-  EXPECT_FALSE(c.keeping.on_refusal);
-  std::string keeping = RepoConfigWith("commit_s: 0.0", "commit_s: 0.3");
-  keeping.replace(keeping.find("on_refusal: false"), std::string("on_refusal: false").size(),
-                  "on_refusal: true");
-  const PolicyNodeConfig keep = PolicyNodeConfigFromString(keeping, "c");
-  EXPECT_EQ(keep.keeping.commit_s, 0.3);
-  EXPECT_TRUE(keep.keeping.on_refusal);
-  EXPECT_NE(ErrorOf([&] {
-              PolicyNodeConfigFromString(RepoConfigWith("commit_s: 0.0", "commit_s: -1"), "c");
-            }).find("'keeping.commit_s' has value -1"),
-            std::string::npos);
   RecoveryConfig bad;
   bad.final_approach_m = std::nan("");
   EXPECT_NE(ErrorOf([&] { ValidateRecoveryConfig(bad); }).find("recovery.final_approach_m must be >= 0"),
             std::string::npos);
 }
-
-class TempDir : public ::testing::Test {
- protected:
-  void SetUp() override {
-    dir_ = std::filesystem::temp_directory_path() /
-           ("quad_policy_test_" + std::to_string(::getpid()) + "_" +
-            ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    std::filesystem::create_directories(dir_);
-  }
-  void TearDown() override { std::filesystem::remove_all(dir_); }
-  std::string Path(const std::string& name) const { return (dir_ / name).string(); }
-  std::filesystem::path dir_;
-};
 
 using Npy = TempDir;
 
@@ -407,7 +387,7 @@ TEST_F(Fixture, DecisionFixturesRoundTrip) {
     f.stamp_s = 1.0 + i / 30.0;
     f.depth.width = 4;
     f.depth.height = 3;
-    for (int k = 0; k < 12; ++k) f.depth.data_m.push_back(static_cast<float>(u(rng)));
+    for (int k = 0; k < 12; ++k) f.depth.depth_m.push_back(static_cast<float>(u(rng)));
     f.state.p_world_body = Eigen::Vector3d(u(rng), u(rng), u(rng));
     f.state.v_world = Eigen::Vector3d(u(rng), u(rng), u(rng));
     f.state.q_world_body = Eigen::Quaterniond(u(rng), u(rng), u(rng), u(rng)).normalized();
@@ -422,7 +402,7 @@ TEST_F(Fixture, DecisionFixturesRoundTrip) {
   EXPECT_TRUE(back.T_body_camera.isApprox(fx.T_body_camera, 0.0));
   for (int i = 0; i < 3; ++i) {
     EXPECT_EQ(back.frames[i].stamp_s, fx.frames[i].stamp_s);
-    EXPECT_EQ(back.frames[i].depth.data_m, fx.frames[i].depth.data_m);
+    EXPECT_EQ(back.frames[i].depth.depth_m, fx.frames[i].depth.depth_m);
     EXPECT_EQ(back.frames[i].state.p_world_body, fx.frames[i].state.p_world_body);
     EXPECT_EQ(back.frames[i].state.v_world, fx.frames[i].state.v_world);
     EXPECT_EQ(back.frames[i].state.q_world_body.coeffs(), fx.frames[i].state.q_world_body.coeffs());

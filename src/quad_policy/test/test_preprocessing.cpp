@@ -46,10 +46,10 @@ TEST(PreprocessDepth, IntegerFactorIsTheBlockMeanOverMaxDepth) {
   DepthImage img;
   img.width = 4;
   img.height = 4;
-  img.data_m = {1, 2, 3, 4,  //
-                5, 6, 7, 8,  //
-                1, 1, 2, 2,  //
-                1, 1, 2, 2};
+  img.depth_m = {1, 2, 3, 4,  //
+                 5, 6, 7, 8,  //
+                 1, 1, 2, 2,  //
+                 1, 1, 2, 2};
   const std::vector<float> x = PreprocessDepth(img.view(), 2, 2, 10.0);
   ASSERT_EQ(x.size(), 4u);
   EXPECT_EQ(x[0], RoundToFloat16(3.5f / 10.0f));
@@ -63,7 +63,7 @@ TEST(PreprocessDepth, Rep118SpecialsAndRangeAreMappedBeforeAveraging) {
   img.width = 6;
   img.height = 1;
   // +inf (no return) and NaN -> max; -inf (too near) and negatives -> 0; beyond max -> max.
-  img.data_m = {kInf, kNan, -kInf, -2.0f, 25.0f, 5.0f};
+  img.depth_m = {kInf, kNan, -kInf, -2.0f, 25.0f, 5.0f};
   const std::vector<float> x = PreprocessDepth(img.view(), 1, 6, 10.0);
   const std::vector<float> expected = {1.0f, 1.0f, 0.0f, 0.0f, 1.0f, 0.5f};
   for (int i = 0; i < 6; ++i) EXPECT_EQ(x[i], expected[i]) << "pixel " << i;
@@ -75,7 +75,7 @@ TEST(PreprocessDepth, NonDivisibleSizesUseTorchsOverlappingCells) {
   DepthImage img;
   img.width = 5;
   img.height = 1;
-  img.data_m = {1, 2, 3, 4, 5};
+  img.depth_m = {1, 2, 3, 4, 5};
   const std::vector<float> x = PreprocessDepth(img.view(), 1, 2, 10.0);
   EXPECT_EQ(x[0], RoundToFloat16(2.0f / 10.0f));
   EXPECT_EQ(x[1], RoundToFloat16(4.0f / 10.0f));
@@ -95,7 +95,7 @@ TEST(PreprocessDepth, RejectsEmptyImagesAndBadSizes) {
   DepthImage img;
   img.width = 2;
   img.height = 2;
-  img.data_m = {1, 1, 1, 1};
+  img.depth_m = {1, 1, 1, 1};
   EXPECT_THROW(PreprocessDepth(img.view(), 0, 8, 10.0), std::invalid_argument);
   try {
     PreprocessDepth(img.view(), 2, 2, 0.0);

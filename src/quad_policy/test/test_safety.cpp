@@ -1,5 +1,5 @@
 // The safety layer: one test per refusal reason, the acceptance of a safe plan, the depth test against a
-// brute-force scan of every pixel, and the depth memory.
+// brute-force scan of every pixel, the view test and the rest of a kept plan.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -18,11 +18,7 @@ constexpr float kInf = std::numeric_limits<float>::infinity();
 // 160 x 120 camera with Fast-Planner's field of view, at the world origin looking along world +x.
 CameraModel Camera() {
   CameraModel c;
-  c.width = 160;
-  c.height = 120;
-  c.fx = c.fy = 96.8;
-  c.cx = 79.5;
-  c.cy = 59.5;
+  c.intrinsics = quad_core::CameraIntrinsics{160, 120, 96.8, 96.8, 79.5, 59.5};
   Eigen::Matrix3d R;  // columns: the optical axes in the world (x right = -y, y down = -z, z forward = +x)
   R << 0, 0, 1, -1, 0, 0, 0, -1, 0;
   c.T_world_camera.linear() = R;
@@ -33,7 +29,7 @@ DepthImage Uniform(float depth_m) {
   DepthImage d;
   d.width = 160;
   d.height = 120;
-  d.data_m.assign(160 * 120, depth_m);
+  d.depth_m.assign(160 * 120, depth_m);
   return d;
 }
 
@@ -130,7 +126,7 @@ TEST(Safety, RadiusIsTheMarginBesideAnObstacle) {
   // A pillar at 3 m filling the image columns u < 40 (left of the camera axis, world +y side).
   DepthImage d = Uniform(kInf);
   for (int v = 0; v < 120; ++v) {
-    for (int u = 0; u < 40; ++u) d.data_m[v * 160 + u] = 3.0f;
+    for (int u = 0; u < 40; ++u) d.depth_m[v * 160 + u] = 3.0f;
   }
   // The edge ray (column 39) passes (79.5 - 39) / 96.8 * z = 0.418 z beside the axis: the pillar's surface at
   // 3 m begins 1.255 m to the left, the occupied space behind it widens with depth. The straight line is far
@@ -156,12 +152,13 @@ TEST(Safety, SamplesBehindTheCameraOrHoldingItAreNotJudged) {
 }
 
 // Reference: every pixel of the image, no bounding rectangle.
-int BruteForceOccupied(const Eigen::Vector3d& c, double r, const DepthImage& d, const CameraModel& cam) {
+int BruteForceOccupied(const Eigen::Vector3d& c, double r, const DepthImage& d, const CameraModel& camera) {
+  const quad_core::CameraIntrinsics& cam = camera.intrinsics;
   if (c.squaredNorm() <= r * r) return 0;
   int n = 0;
   for (int v = 0; v < cam.height; ++v) {
     for (int u = 0; u < cam.width; ++u) {
-      double depth = d.data_m[v * cam.width + u];
+      double depth = d.depth_m[v * cam.width + u];
       if (std::isnan(depth) || (std::isinf(depth) && depth > 0)) continue;
       if (depth < 0) depth = 0;
       const Eigen::Vector3d dir((u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, 1.0);
@@ -187,7 +184,7 @@ TEST(Safety, BoundingRectangleFindsEveryOccupiedPixelOfABruteForceScan) {
       const int v1 = std::min(120, v0 + 1 + static_cast<int>(rng() % 60));
       const float depth = static_cast<float>(dd(rng));
       for (int v = v0; v < v1; ++v) {
-        for (int u = u0; u < u1; ++u) d.data_m[v * 160 + u] = depth;
+        for (int u = u0; u < u1; ++u) d.depth_m[v * 160 + u] = depth;
       }
     }
     const Eigen::Vector3d c(xy(rng), xy(rng), z(rng));
@@ -213,20 +210,6 @@ TEST(Safety, SampleTimesAreIntegerStepsEndingAtTheHorizon) {
   EXPECT_DOUBLE_EQ(t.back(), 2.0);
   cfg.sample_dt_s = 0.5;
   EXPECT_EQ(SafetySampleTimes(Line(1.0), cfg).size(), 5u);  // 0 .. 2.0 exactly
-}
-
-TEST(Safety, NearestDepthTreatsTheRep118SpecialsAsTheDepthTestDoes) {
-  DepthImage img;
-  img.width = 5;
-  img.height = 4;
-  img.data_m.assign(20, std::numeric_limits<float>::infinity());
-  EXPECT_EQ(NearestDepth(img.view()), std::numeric_limits<double>::infinity());  // nothing seen
-  img.data_m[7] = 2.5f;
-  img.data_m[18] = 1.75f;
-  img.data_m[0] = std::numeric_limits<float>::quiet_NaN();
-  EXPECT_EQ(NearestDepth(img.view()), 1.75);
-  img.data_m[14] = -std::numeric_limits<float>::infinity();  // too near: 0
-  EXPECT_EQ(NearestDepth(img.view()), 0.0);
 }
 
 TEST(Safety, ConfigValidationNamesTheField) {
@@ -282,140 +265,16 @@ TEST(Safety, TrajectoryInViewFollowsTheFieldOfView) {
   EXPECT_FALSE(TrajectoryInView(Heading(45.0, 0.2), Camera(), cfg));
 }
 
-// Depth memory (the Python twin: tests/python/test_inference_safety.py).
-CameraModel YawedCamera(double yaw_deg, const Eigen::Vector3d& position = Eigen::Vector3d::Zero()) {
-  CameraModel c = Camera();
-  c.T_world_camera.linear() =
-      Eigen::AngleAxisd(yaw_deg * M_PI / 180.0, Eigen::Vector3d::UnitZ()).toRotationMatrix() *
-      Camera().T_world_camera.linear();
-  c.T_world_camera.translation() = position;
-  return c;
-}
-
-DepthFrame Frame(double stamp_s, float depth_m, const CameraModel& camera) {
-  DepthFrame f;
-  f.stamp_s = stamp_s;
-  f.image = Uniform(depth_m);
-  f.camera = camera;
-  return f;
-}
-
-TEST(DepthMemory, ARememberedFrameJudgesSamplesTheLatestFrameDoesNotShow) {
-  // The frame at t = 1 s looked along +x at a wall 3 m ahead; the latest looks along +y into free space.
-  const std::vector<DepthFrame> wall_ahead{Frame(1.0, 3.0f, Camera())};
-  const DepthImage free_space = Uniform(kInf);
-  const DepthImageView v = free_space.view();
-  const CameraModel latest = YawedCamera(90.0);
-  const SafetyConfig cfg;
-  EXPECT_TRUE(CheckTrajectory(Line(2.0), kVehicle, &v, latest, cfg).accepted());  // no memory: not judged
-  const SafetyResult r = CheckTrajectory(Line(2.0), kVehicle, &v, latest, cfg, wall_ahead);
-  EXPECT_EQ(r.verdict, SafetyVerdict::kCollisionInDepth) << r.reason;
-  EXPECT_NEAR(r.value, 1.45, 1e-9);  // the same sample as with the wall in the latest frame
-  EXPECT_NE(r.reason.find("of the remembered frame 1 (t = 1.000 s)"), std::string::npos) << r.reason;
-  const DepthCollision hit = FindDepthCollision({Line(2.0).Position(1.45)}, 0.25, 1, v, latest, wall_ahead);
-  EXPECT_TRUE(hit.collides);
-  EXPECT_EQ(hit.frame, 1);
-  EXPECT_EQ(hit.frame_stamp_s, 1.0);
-  // The newest frame that shows a sample judges it.
-  const std::vector<DepthFrame> newer_free{Frame(2.0, kInf, Camera()), Frame(1.0, 3.0f, Camera())};
-  EXPECT_TRUE(CheckTrajectory(Line(2.0), kVehicle, &v, latest, cfg, newer_free).accepted());
-  // A frame that does not show the samples (looking along -x) does not judge them.
-  const std::vector<DepthFrame> behind{Frame(2.0, 0.5f, YawedCamera(180.0)), Frame(1.0, 3.0f, Camera())};
-  const SafetyResult rb = CheckTrajectory(Line(2.0), kVehicle, &v, latest, cfg, behind);
-  EXPECT_NE(rb.reason.find("remembered frame 2 (t = 1.000 s)"), std::string::npos) << rb.reason;
-}
-
-TEST(DepthMemory, TheLatestFrameJudgesWhatItShows) {
-  const std::vector<DepthFrame> old_free{Frame(1.0, kInf, Camera())};
-  const DepthImage wall = Uniform(3.0f);
-  const DepthImageView v = wall.view();
-  const SafetyResult without = Check(Line(2.0), wall);
-  const SafetyResult with_memory =
-      CheckTrajectory(Line(2.0), kVehicle, &v, Camera(), SafetyConfig(), old_free);
-  EXPECT_EQ(with_memory.verdict, without.verdict);
-  EXPECT_EQ(with_memory.value, without.value);
-  EXPECT_EQ(with_memory.reason, without.reason);
-  // A sample inside the sphere around a remembered camera (where the vehicle was) is free in that frame.
-  const std::vector<DepthFrame> wall_at_old_camera{Frame(1.0, 0.01f, YawedCamera(0.0, {2.9, 0.0, 0.0}))};
-  const DepthImage free_space = Uniform(kInf);
-  const DepthImageView f = free_space.view();
-  EXPECT_FALSE(
-      FindDepthCollision({{3.0, 0.0, 0.0}}, 0.25, 1, f, YawedCamera(90.0), wall_at_old_camera).collides);
-  EXPECT_EQ(FindDepthCollision({{3.5, 0.0, 0.0}}, 0.25, 1, f, YawedCamera(90.0), wall_at_old_camera).frame,
-            1);
-}
-
-TEST(DepthMemory, TrajectoryInViewCountsSamplesARememberedFrameShows) {
-  const SafetyConfig cfg;
-  const CameraModel latest = YawedCamera(90.0);
-  EXPECT_FALSE(TrajectoryInView(Line(2.0), latest, cfg));
-  EXPECT_TRUE(TrajectoryInView(Line(2.0), latest, cfg, {Frame(1.0, kInf, Camera())}));
-  EXPECT_FALSE(TrajectoryInView(Line(2.0), latest, cfg, {Frame(1.0, kInf, YawedCamera(180.0))}));
-}
-
-TEST(DepthMemory, KeepsFramesSpacedNewestFirstAndForgetsWhenTimeGoesBack) {
-  DepthMemory m(3, 0.2);
-  DepthImage d = Uniform(5.0f);
-  const auto stamps = [&m] {
-    std::vector<double> s;
-    for (const DepthFrame& f : m.frames()) s.push_back(f.stamp_s);
-    return s;
-  };
-  EXPECT_TRUE(m.Add(1.0, d.view(), Camera()));
-  EXPECT_FALSE(m.Add(1.1, d.view(), Camera()));  // too soon after the newest kept
-  EXPECT_TRUE(m.Add(1.2, d.view(), Camera()));
-  EXPECT_TRUE(m.Add(1.45, d.view(), Camera()));
-  EXPECT_TRUE(m.Add(1.7, d.view(), Camera()));
-  EXPECT_EQ(stamps(), (std::vector<double>{1.7, 1.45, 1.2}));  // at most 3, the oldest dropped
-  d.data_m[0] = 1.0f;
-  EXPECT_EQ(m.frames().front().image.data_m[0], 5.0f);  // a copy
-  EXPECT_TRUE(m.Add(0.5, d.view(), Camera()));          // time went back: the memory starts again
-  EXPECT_EQ(stamps(), (std::vector<double>{0.5}));
-  m.Clear();
-  EXPECT_TRUE(m.frames().empty());
-  DepthMemory off(0, 0.2);
-  EXPECT_FALSE(off.Add(1.0, d.view(), Camera()));
-  EXPECT_TRUE(off.frames().empty());
-  // A view with a row stride wider than its width is copied row by row.
-  std::vector<float> padded(4 * 3, -1.0f);
-  for (int v = 0; v < 3; ++v)
-    for (int u = 0; u < 2; ++u) padded[v * 4 + u] = static_cast<float>(10 * v + u);
-  DepthMemory one(1, 0.0);
-  ASSERT_TRUE(one.Add(1.0, DepthImageView{2, 3, 4, padded.data()}, Camera()));
-  EXPECT_EQ(one.frames().front().image.data_m, (std::vector<float>{0, 1, 10, 11, 20, 21}));
-}
-
-TEST(DepthMemory, BadSettingsAndSizesAreRefusedWithTheirNames) {
-  const auto message = [](const std::function<void()>& f) {
-    try {
-      f();
-    } catch (const std::invalid_argument& e) {
-      return std::string(e.what());
-    }
-    return std::string("no exception");
-  };
-  EXPECT_NE(message([] { DepthMemory(-1, 0.2); }).find("memory_frames must be >= 0"), std::string::npos);
-  EXPECT_NE(message([] { DepthMemory(2, std::nan("")); }).find("memory_spacing_s finite"), std::string::npos);
-  SafetyConfig cfg;
-  cfg.memory_frames = 65;
-  EXPECT_NE(message([&] { ValidateSafetyConfig(cfg); }).find("safety.memory_frames"), std::string::npos);
-  cfg = SafetyConfig();
-  cfg.memory_spacing_s = -0.1;
-  EXPECT_NE(message([&] { ValidateSafetyConfig(cfg); }).find("safety.memory_spacing_s"), std::string::npos);
-  const DepthImage free_space = Uniform(kInf);
-  DepthFrame small;
-  small.image.width = small.image.height = 10;
-  small.image.data_m.assign(100, 1.0f);
-  small.camera = Camera();
-  EXPECT_NE(message([&] {
-              FindDepthCollision({{1.0, 0.0, 0.0}}, 0.25, 1, free_space.view(), Camera(), {small});
-            }).find("remembered frame 1: depth image and camera model sizes differ"),
-            std::string::npos);
-  const DepthImage tiny = small.image;
-  EXPECT_NE(message([&] {
-              FindDepthCollision({{1.0, 0.0, 0.0}}, 0.25, 1, tiny.view(), Camera());
-            }).find("latest frame: depth image and camera model sizes differ"),
-            std::string::npos);
+TEST(Safety, AFrameOfAnotherSizeThanItsCameraIsRefusedWithTheReason) {
+  DepthImage tiny;
+  tiny.width = tiny.height = 10;
+  tiny.depth_m.assign(100, 1.0f);
+  try {
+    FindDepthCollision({{1.0, 0.0, 0.0}}, 0.25, 1, tiny.view(), Camera());
+    ADD_FAILURE() << "no error";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("depth image and camera model sizes differ"), std::string::npos);
+  }
 }
 
 // The line of Line() flown from t = 5 s; at 1.5 m/s it is 0.45 m further along 0.3 s later.

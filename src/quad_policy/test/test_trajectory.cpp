@@ -103,57 +103,6 @@ TEST(BrakingTrajectory, RejectsNonFiniteStatesAndBadLimits) {
                std::invalid_argument);
 }
 
-TEST(SetConstantYawRate, TheHeadingIsExactlyLinearOverTheWholeSpline) {
-  UniformBspline s = BrakingTrajectory(Eigen::Vector3d(1, 2, 3), Eigen::Vector3d(1, 0, 0), 3.0, 0.5, 5.0);
-  EXPECT_TRUE(s.yaw_ctrl.empty());  // no heading unless one is set
-  SetConstantYawRate(&s, 3.0, -0.8);
-  ASSERT_EQ(s.yaw_ctrl.size(), 4u);
-  // Evaluated with the same basis (the yaw control points as the first coordinate of a spline).
-  UniformBspline yaw = s;
-  yaw.ctrl_world.setZero();
-  for (int i = 0; i < 4; ++i) yaw.ctrl_world(i, 0) = s.yaw_ctrl[static_cast<std::size_t>(i)];
-  for (double t = 0.0; t <= s.duration_s(); t += 0.05) {
-    EXPECT_NEAR(yaw.Position(t).x(), 3.0 - 0.8 * t, 1e-12) << t;
-    EXPECT_NEAR(yaw.Velocity(t).x(), -0.8, 1e-12) << t;
-  }
-  // The positions are unchanged; a longer spline gets as many yaw points as control points.
-  EXPECT_EQ(s.ctrl_world,
-            BrakingTrajectory(Eigen::Vector3d(1, 2, 3), Eigen::Vector3d(1, 0, 0), 3.0, 0.5, 5.0).ctrl_world);
-  UniformBspline r = RandomSpline(3, 9);
-  SetConstantYawRate(&r, 0.0, 1.0);
-  EXPECT_EQ(r.yaw_ctrl.size(), 9u);
-  EXPECT_DOUBLE_EQ(r.yaw_ctrl[8], 7 * 0.25);
-  EXPECT_THROW(SetConstantYawRate(&r, NAN, 1.0), std::invalid_argument);
-  EXPECT_THROW(SetConstantYawRate(&r, 0.0, INFINITY), std::invalid_argument);
-  UniformBspline empty;
-  EXPECT_THROW(SetConstantYawRate(&empty, 0.0, 1.0), std::invalid_argument);
-}
-
-TEST(TurningStop, BacksOffWithinTheDecelerationLimitAndEndsAtRest) {
-  const Eigen::Vector3d p0(1, 2, 3), v0(0.6, -0.3, 0.0), b(-0.5, 0.2, 0.0);
-  const UniformBspline s = TurningStop(p0, v0, b, 0.2, 0.5, 3.0, 0.5, 7.0);
-  const double T = s.knot_dt_s;
-  EXPECT_NEAR(T, std::sqrt(6.0 * b.norm() / 3.0), 1e-12);  // the back-off sets the duration here
-  EXPECT_NEAR((s.Position(0.0) - p0).norm(), 0.0, 1e-12);
-  EXPECT_NEAR((s.Velocity(0.0) - v0).norm(), 0.0, 1e-12);
-  EXPECT_NEAR((s.Position(T) - (p0 + v0 * T / 3.0 + b)).norm(), 0.0, 1e-12);
-  EXPECT_NEAR(s.Velocity(T).norm(), 0.0, 1e-12);
-  ASSERT_EQ(s.yaw_ctrl.size(), 4u);
-  EXPECT_NEAR(s.yaw_ctrl[1], 0.2, 1e-12);
-  EXPECT_NEAR(s.yaw_ctrl[2], 0.2 + 0.5 * T, 1e-12);
-  // The back-off alone accelerates at most max_decel (at its ends).
-  const UniformBspline only = TurningStop(p0, Eigen::Vector3d::Zero(), b, 0.0, 0.5, 3.0, 0.5, 7.0);
-  double peak = 0.0;
-  for (int i = 0; i <= 40; ++i) peak = std::max(peak, only.Acceleration(T * i / 40.0).norm());
-  EXPECT_NEAR(peak, 3.0, 1e-9);
-  // No back-off: BrakingTrajectory's motion.
-  const UniformBspline plain = TurningStop(p0, v0, Eigen::Vector3d::Zero(), 0.2, 0.5, 3.0, 0.5, 7.0);
-  EXPECT_LT((plain.ctrl_world - BrakingTrajectory(p0, v0, 3.0, 0.5, 7.0).ctrl_world).norm(), 1e-12);
-  EXPECT_THROW(TurningStop(p0, v0, Eigen::Vector3d(NAN, 0, 0), 0.0, 0.5, 3.0, 0.5, 7.0),
-               std::invalid_argument);
-  EXPECT_THROW(TurningStop(p0, v0, b, 0.0, 0.5, 0.0, 0.5, 7.0), std::invalid_argument);
-}
-
 TEST(FinalApproach, EndsAtRestOnTheGoalWithinTheAccelerationLimit) {
   const Eigen::Vector3d p0(1, 2, 1.5), v0(1.5, -0.5, 0.8), goal(1.6, 2.8, 2.3);
   const std::optional<UniformBspline> s = FinalApproach(p0, v0, goal, 2.0, 0.5, 4.0);

@@ -10,21 +10,19 @@
 // With --trajectories (an (N, K, 3) array of world-frame control points, one trajectory per frame, knot
 // interval --knot-dt, default the policy's), the safety layer alone also judges those trajectories against
 // frame i's depth, camera and odometry: traj_verdict.npy, traj_value.npy (designed cases for every refusal
-// reason) and traj_in_view.npy (TrajectoryInView). The recovery (the config's recovery section) writes
-// recovery_tries.npy, recovery_yaw_deg.npy (NaN: not recovered) and recovery_ctrl.npy (zeros: not
-// recovered); sent_kind.npy is 0 nothing, 1 the policy's plan, 2 the stopping trajectory, 3 the recovery's, 4
-// the recovery's replacing an accepted plan (steering), 5 the final approach (recovery.final_approach_m; its
-// 4 control points in final_ctrl.npy and knot interval in final_knot_dt.npy, zeros: none), 6 nothing, the
-// plan sent before kept on a refusal (keeping.on_refusal), 7 nothing, the plan sent before committed to
-// (keeping.commit_s). Turning in place
-// (recovery.turn_after_stops) writes turn_rate_radps.npy (0: not turning) and stop_yaw.npy (the stopping
-// trajectory's 4 yaw control points; zeros: none). With several hypotheses (model.hypotheses), y.npy holds
-// the whole network output, proposed_hypothesis.npy the index of the plan proposed and
-// recovery_hypothesis.npy that of the recovery's plan (-1: not recovered); file_decode.npy decodes the file's
-// own `select`. The frames are decided in order by one decider, as a node decides an episode.
+// reason) and traj_in_view.npy (TrajectoryInView). The decisions: sent_kind.npy (Decision::sent_kind: 0
+// nothing, 1 the policy's plan, 2 the stopping trajectory, 3 the recovery's, 5 the final approach, 6 the plan
+// sent before kept on a refusal, 7 committed to; 4 was steering, removed), recovery_tries.npy,
+// recovery_yaw_deg.npy (NaN: not recovered), recovery_ctrl.npy (zeros: not recovered), final_ctrl.npy and
+// final_knot_dt.npy (zeros: none), stop_ctrl.npy and stop_knot_dt.npy (zeros: none). With several hypotheses
+// (model.hypotheses), y.npy holds the whole network output, proposed_hypothesis.npy the index of the plan
+// proposed and recovery_hypothesis.npy that of the recovery's plan (-1: not recovered); file_decode.npy
+// decodes the file's own `select`. The frames are decided in order by one decider, as a node decides an
+// episode. reason.txt: the decision's words (Summarize), one line per frame.
 //
 // Exit status: 0 done, 1 bad input (message on stderr), 2 usage.
 #include <filesystem>
+#include <fstream>
 #include <iostream>
 #include <limits>
 #include <map>
@@ -72,12 +70,14 @@ int main(int argc, char** argv) {
     auto policy = std::make_shared<const TorchPolicy>(args["policy"]);
     PolicyDecider decider(policy, cfg.safety, cfg.refusal, cfg.recovery, cfg.keeping);
     const DecisionFixture fx = ReadDecisionFixture(args["fixture"]);
+    std::filesystem::create_directories(args["out"]);
     const PolicyMeta& m = policy->meta();
     const std::size_t n = fx.frames.size();
     const std::size_t k = static_cast<std::size_t>(m.num_ctrl_pts);
     std::vector<float> depth_x, file_depth_x, state_x, y;
     std::vector<double> ctrl, file_decode, file_forward, safety_value, stop_ctrl, stop_dt, knots;
-    std::vector<double> recovery_yaw, recovery_ctrl, turn_rate, stop_yaw, final_ctrl, final_dt;
+    std::vector<double> recovery_yaw, recovery_ctrl, final_ctrl, final_dt;
+    std::ofstream reasons(args["out"] + "/reason.txt");
     std::vector<int32_t> verdict, sent_kind, recovery_tries, proposed_hypothesis, recovery_hypothesis;
     for (std::size_t i = 0; i < n; ++i) {
       const RecordedFrame& f = fx.frames[i];
@@ -100,12 +100,8 @@ int main(int argc, char** argv) {
       AppendCtrl(policy->FileForward(in.depth, f.state, f.goal_world), &file_forward);
       verdict.push_back(static_cast<int32_t>(d.safety.verdict));
       safety_value.push_back(d.safety.value);
-      const UniformBspline* sent = d.to_send();
-      sent_kind.push_back(sent == nullptr    ? (d.kept ? (d.committed ? 7 : 6) : 0)
-                          : d.final_approach ? 5
-                          : d.recovery       ? (d.steered ? 4 : 3)
-                          : d.accepted()     ? 1
-                                             : 2);
+      sent_kind.push_back(static_cast<int32_t>(d.sent_kind()));
+      reasons << Summarize(d, m.hypotheses, f.stamp_s).reason << "\n";
       if (d.final_approach) {
         AppendCtrl(d.final_approach->ctrl_world, &final_ctrl);
         final_dt.push_back(d.final_approach->knot_dt_s);
@@ -128,17 +124,10 @@ int main(int argc, char** argv) {
         stop_ctrl.insert(stop_ctrl.end(), 12, 0.0);
         stop_dt.push_back(0.0);
       }
-      turn_rate.push_back(d.turn_rate_radps);
-      if (d.stop && !d.stop->yaw_ctrl.empty()) {
-        stop_yaw.insert(stop_yaw.end(), d.stop->yaw_ctrl.begin(), d.stop->yaw_ctrl.end());
-      } else {
-        stop_yaw.insert(stop_yaw.end(), 4, 0.0);
-      }
       if (i == 0) knots = d.proposed.Knots();
       std::cerr << "[policy_replay] frame " << i << ": " << d.safety.reason << "\n";
     }
     const std::string out = args["out"];
-    std::filesystem::create_directories(out);
     const std::size_t h = static_cast<std::size_t>(m.input_height),
                       w = static_cast<std::size_t>(m.input_width);
     WriteNpy(out + "/depth_x.npy", NpyArray::FromFloat(depth_x, {n, h, w}));
@@ -158,10 +147,8 @@ int main(int argc, char** argv) {
     WriteNpy(out + "/recovery_tries.npy", NpyArray::FromInt32(recovery_tries, {n}));
     WriteNpy(out + "/recovery_yaw_deg.npy", NpyArray::FromDouble(recovery_yaw, {n}));
     WriteNpy(out + "/recovery_ctrl.npy", NpyArray::FromDouble(recovery_ctrl, {n, k, 3}));
-    WriteNpy(out + "/turn_rate_radps.npy", NpyArray::FromDouble(turn_rate, {n}));
     WriteNpy(out + "/final_ctrl.npy", NpyArray::FromDouble(final_ctrl, {n, 4, 3}));
     WriteNpy(out + "/final_knot_dt.npy", NpyArray::FromDouble(final_dt, {n}));
-    WriteNpy(out + "/stop_yaw.npy", NpyArray::FromDouble(stop_yaw, {n, 4}));
     WriteNpy(out + "/knots.npy", NpyArray::FromDouble(knots, {knots.size()}));
     WriteNpy(out + "/has_forward_net.npy", NpyArray::FromInt32({policy->has_forward_net() ? 1 : 0}, {1}));
     if (args.count("trajectories")) {

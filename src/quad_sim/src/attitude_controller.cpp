@@ -33,12 +33,12 @@ AttitudeTarget AttitudeTarget::FromTrpy(const TrpyCommand& cmd) {
   return t;
 }
 
-AttitudeController::AttitudeController(const VehicleParams& vehicle) : vehicle_(vehicle) {
+AttitudeController::AttitudeController(const quad_core::VehicleParams& vehicle) : vehicle_(vehicle) {
   vehicle_.Validate();
   mixer_inv_ = vehicle_.Mixer().inverse();
 }
 
-Eigen::Vector4d AttitudeController::ThrustAndMoment(const AttitudeTarget& t, const VehicleState& s) const {
+Eigen::Vector4d AttitudeController::ThrustAndMoment(const AttitudeTarget& t, const DynamicsState& s) const {
   const Eigen::Matrix3d R = s.q_world_body.toRotationMatrix();
   const Eigen::Matrix3d& Rd = t.R_world_des;
   const Eigen::Vector3d& W = s.w_body;
@@ -54,7 +54,7 @@ Eigen::Vector4d AttitudeController::ThrustAndMoment(const AttitudeTarget& t, con
   return out;
 }
 
-Eigen::Vector4d AttitudeController::MotorCommands(const AttitudeTarget& t, const VehicleState& s) const {
+Eigen::Vector4d AttitudeController::MotorCommands(const AttitudeTarget& t, const DynamicsState& s) const {
   if (!t.enable_motors) return Eigen::Vector4d::Zero();
   const Eigen::Vector4d w2 = mixer_inv_ * ThrustAndMoment(t, s);
   const double lo = vehicle_.min_motor_speed_radps * vehicle_.min_motor_speed_radps;

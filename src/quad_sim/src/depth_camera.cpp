@@ -11,8 +11,8 @@
 
 namespace quad_sim {
 
-CameraIntrinsics DepthCameraConfig::FastPlannerFov(int width, int height) {
-  CameraIntrinsics k;
+quad_core::CameraIntrinsics DepthCameraConfig::FastPlannerFov(int width, int height) {
+  quad_core::CameraIntrinsics k;
   k.width = width;
   k.height = height;
   // Fast-Planner's simulated depth camera: 640 x 480, fx = fy = 387.2. Same field of view at any resolution.
@@ -26,7 +26,7 @@ CameraIntrinsics DepthCameraConfig::FastPlannerFov(int width, int height) {
 
 void DepthCameraConfig::Validate() const {
   auto fail = [](const std::string& what) { throw std::invalid_argument("DepthCameraConfig: " + what); };
-  const CameraIntrinsics& k = intrinsics;
+  const quad_core::CameraIntrinsics& k = intrinsics;
   if (k.width < 1 || k.height < 1) fail("width and height must be >= 1");
   if (!(k.fx > 0.0) || !(k.fy > 0.0) || !std::isfinite(k.fx) || !std::isfinite(k.fy))
     fail("fx, fy must be > 0");
@@ -85,14 +85,14 @@ inline double RayBoxDepth(const BoxRaster& b, const double d[3]) {
 
 }  // namespace
 
-DepthImage DepthRenderer::Render(const WorldIndex& index, const Eigen::Vector3d& p_world_camera,
-                                 const Eigen::Quaterniond& q_world_camera) const {
+quad_core::DepthImage DepthRenderer::Render(const WorldIndex& index, const Eigen::Vector3d& p_world_camera,
+                                            const Eigen::Quaterniond& q_world_camera) const {
   // Exact ray casting organised as rasterisation: the boxes that the btDbvt frustum query returns are sorted
   // near to far, each is projected to a screen rectangle, and every pixel of that rectangle gets the exact
   // analytic ray/box test unless its 8x8 tile is already nearer than the whole box (occlusion culling). The
   // result equals casting every pixel's ray against every box; it is 3-5x faster than per-pixel tree
   // traversal.
-  const CameraIntrinsics& k = config_.intrinsics;
+  const quad_core::CameraIntrinsics& k = config_.intrinsics;
   const int W = k.width;
   const int H = k.height;
   const Eigen::Matrix3d R = q_world_camera.normalized().toRotationMatrix();
@@ -232,7 +232,7 @@ DepthImage DepthRenderer::Render(const WorldIndex& index, const Eigen::Vector3d&
     for (std::thread& t : pool) t.join();
   }
 
-  DepthImage img;
+  quad_core::DepthImage img;
   img.width = W;
   img.height = H;
   img.depth_m.resize(depth.size());
@@ -250,7 +250,7 @@ DepthImage DepthRenderer::Render(const WorldIndex& index, const Eigen::Vector3d&
   return img;
 }
 
-void DepthRenderer::AddNoise(DepthImage* image, std::mt19937_64* rng) const {
+void DepthRenderer::AddNoise(quad_core::DepthImage* image, std::mt19937_64* rng) const {
   if (config_.noise_std_at_1m_m <= 0.0) return;
   std::normal_distribution<double> unit(0.0, 1.0);
   for (float& z : image->depth_m) {

@@ -9,12 +9,23 @@
 
 namespace quad_sim {
 
-bool VehicleState::AllFinite() const {
+bool DynamicsState::AllFinite() const {
   return p_world_body.allFinite() && v_world.allFinite() && q_world_body.coeffs().allFinite() &&
          w_body.allFinite() && motor_speeds_radps.allFinite();
 }
 
-QuadrotorDynamics::QuadrotorDynamics(const VehicleParams& vehicle, const GroundContactParams& ground)
+quad_core::VehicleState DynamicsState::Odometry(double t_s) const {
+  quad_core::VehicleState o;
+  o.t_s = t_s;
+  o.p_world_body = p_world_body;
+  o.v_world = v_world;
+  o.q_world_body = q_world_body;
+  o.w_body = w_body;
+  return o;
+}
+
+QuadrotorDynamics::QuadrotorDynamics(const quad_core::VehicleParams& vehicle,
+                                     const GroundContactParams& ground)
     : vehicle_(vehicle), ground_(ground) {
   vehicle_.Validate();
   mixer_ = vehicle_.Mixer();
@@ -29,7 +40,7 @@ QuadrotorDynamics::QuadrotorDynamics(const VehicleParams& vehicle, const GroundC
   }
 }
 
-Wrench QuadrotorDynamics::RotorWrench(const VehicleState& s) const {
+Wrench QuadrotorDynamics::RotorWrench(const DynamicsState& s) const {
   const Eigen::Vector4d w2 = s.motor_speeds_radps.cwiseProduct(s.motor_speeds_radps);
   const Eigen::Vector4d fm = mixer_ * w2;
   Wrench out;
@@ -38,14 +49,14 @@ Wrench QuadrotorDynamics::RotorWrench(const VehicleState& s) const {
   return out;
 }
 
-double QuadrotorDynamics::LowestPointZ(const VehicleState& s) const {
+double QuadrotorDynamics::LowestPointZ(const DynamicsState& s) const {
   const Eigen::Matrix3d R = s.q_world_body.toRotationMatrix();
   double z = s.p_world_body.z() + (R * corners_body_[0]).z();
   for (const auto& c : corners_body_) z = std::min(z, s.p_world_body.z() + (R * c).z());
   return z;
 }
 
-Wrench QuadrotorDynamics::GroundWrench(const VehicleState& s) const {
+Wrench QuadrotorDynamics::GroundWrench(const DynamicsState& s) const {
   Wrench out;
   const Eigen::Matrix3d R = s.q_world_body.toRotationMatrix();
   const Eigen::Vector3d w_world = R * s.w_body;
@@ -69,10 +80,10 @@ Wrench QuadrotorDynamics::GroundWrench(const VehicleState& s) const {
   return out;
 }
 
-QuadrotorDynamics::Derivative QuadrotorDynamics::Evaluate(const VehicleState& s,
+QuadrotorDynamics::Derivative QuadrotorDynamics::Evaluate(const DynamicsState& s,
                                                           const Eigen::Vector4d& motor_cmd_radps) const {
   // RK4's intermediate quaternions drift off the unit sphere by O(h^2): forces use the normalised attitude.
-  VehicleState sn = s;
+  DynamicsState sn = s;
   sn.q_world_body.normalize();
   const Eigen::Matrix3d R = sn.q_world_body.toRotationMatrix();
   const Wrench rotor = RotorWrench(sn);
@@ -97,8 +108,8 @@ QuadrotorDynamics::Derivative QuadrotorDynamics::Evaluate(const VehicleState& s,
   return d;
 }
 
-VehicleState QuadrotorDynamics::Advance(const VehicleState& s, const Derivative& d, double h) {
-  VehicleState out;
+DynamicsState QuadrotorDynamics::Advance(const DynamicsState& s, const Derivative& d, double h) {
+  DynamicsState out;
   out.p_world_body = s.p_world_body + h * d.p_dot;
   out.v_world = s.v_world + h * d.v_dot;
   out.q_world_body =
@@ -109,8 +120,8 @@ VehicleState QuadrotorDynamics::Advance(const VehicleState& s, const Derivative&
   return out;
 }
 
-VehicleState QuadrotorDynamics::Step(const VehicleState& s, const Eigen::Vector4d& motor_cmd_radps,
-                                     double dt_s) const {
+DynamicsState QuadrotorDynamics::Step(const DynamicsState& s, const Eigen::Vector4d& motor_cmd_radps,
+                                      double dt_s) const {
   const Eigen::Vector4d cmd = motor_cmd_radps.cwiseMax(0.0).cwiseMin(vehicle_.max_motor_speed_radps);
   const Derivative k1 = Evaluate(s, cmd);
   const Derivative k2 = Evaluate(Advance(s, k1, 0.5 * dt_s), cmd);
@@ -122,7 +133,7 @@ VehicleState QuadrotorDynamics::Step(const VehicleState& s, const Eigen::Vector4
   sum.q_dot = (k1.q_dot + 2.0 * k2.q_dot + 2.0 * k3.q_dot + k4.q_dot) / 6.0;
   sum.w_dot = (k1.w_dot + 2.0 * k2.w_dot + 2.0 * k3.w_dot + k4.w_dot) / 6.0;
   sum.motor_dot = (k1.motor_dot + 2.0 * k2.motor_dot + 2.0 * k3.motor_dot + k4.motor_dot) / 6.0;
-  VehicleState out = Advance(s, sum, dt_s);
+  DynamicsState out = Advance(s, sum, dt_s);
   out.q_world_body.normalize();
   // Rotor speeds are physically non-negative; RK4 cannot overshoot a first-order lag for dt < tau, but keep
   // it so.

@@ -2,7 +2,7 @@
 
 #include "quad_sim/math_utils.h"
 
-#include <quad_common/strict_yaml.h>
+#include <quad_core/strict_yaml.h>
 
 #include <array>
 #include <cmath>
@@ -14,12 +14,12 @@ namespace {
 
 constexpr double kDegToRad = 3.14159265358979323846 / 180.0;
 
-Eigen::Vector3d ReadVector3(quad_common::StrictYaml* y, const std::string& key,
-                            const quad_common::Check& check = nullptr) {
+Eigen::Vector3d ReadVector3(quad_core::StrictYaml* y, const std::string& key,
+                            const quad_core::Check& check = nullptr) {
   const std::vector<double> v = y->Get<std::vector<double>>(key, check);
   if (v.size() != 3) {
-    throw quad_common::ConfigError(y->source() + ": key '" + key + "' must be a list of 3 numbers, got " +
-                                   std::to_string(v.size()));
+    throw quad_core::ConfigError(y->source() + ": key '" + key + "' must be a list of 3 numbers, got " +
+                                 std::to_string(v.size()));
   }
   return Eigen::Vector3d(v[0], v[1], v[2]);
 }
@@ -35,7 +35,7 @@ std::string Resolve(const std::string& base_dir, const std::string& path) {
 }
 
 template <typename Enum, size_t N>
-Enum ReadEnum(quad_common::StrictYaml* y, const std::string& key,
+Enum ReadEnum(quad_core::StrictYaml* y, const std::string& key,
               const std::array<std::pair<const char*, Enum>, N>& map) {
   const std::string value = y->Get<std::string>(key);
   std::string allowed;
@@ -43,8 +43,8 @@ Enum ReadEnum(quad_common::StrictYaml* y, const std::string& key,
     if (value == name) return e;
     allowed += (allowed.empty() ? "'" : ", '") + std::string(name) + "'";
   }
-  throw quad_common::ConfigError(y->source() + ": key '" + key + "' has value '" + value +
-                                 "' which is not one of " + allowed);
+  throw quad_core::ConfigError(y->source() + ": key '" + key + "' has value '" + value +
+                               "' which is not one of " + allowed);
 }
 
 }  // namespace
@@ -91,15 +91,15 @@ void SimConfig::Validate() const {
 }
 
 SimConfig LoadSimConfig(const std::string& yaml_path) {
-  using quad_common::NonNegative;
-  using quad_common::Positive;
-  quad_common::StrictYaml y = quad_common::StrictYaml::FromFile(yaml_path);
+  using quad_core::NonNegative;
+  using quad_core::Positive;
+  quad_core::StrictYaml y = quad_core::StrictYaml::FromFile(yaml_path);
   const std::string dir = DirName(yaml_path);
   SimConfig c;
   c.vehicle_file = Resolve(dir, y.Get<std::string>("vehicle_file"));
-  c.vehicle = LoadVehicleParams(c.vehicle_file);
+  c.vehicle = quad_core::LoadVehicleParams(c.vehicle_file);
 
-  c.physics_dt_s = y.Get<double>("physics.dt_s", quad_common::InRange(1e-5, 0.01));
+  c.physics_dt_s = y.Get<double>("physics.dt_s", quad_core::InRange(1e-5, 0.01));
   c.odometry_rate_hz = y.Get<double>("odometry_rate_hz", Positive());
 
   c.ground_contact.stiffness_N_per_m = y.Get<double>("ground_contact.stiffness_N_per_m", Positive());
@@ -111,10 +111,10 @@ SimConfig LoadSimConfig(const std::string& yaml_path) {
   c.ground_crash.max_landing_horizontal_speed_mps =
       y.Get<double>("ground_contact.crash_horizontal_speed_mps", Positive());
   c.ground_crash.max_landing_tilt_deg =
-      y.Get<double>("ground_contact.crash_tilt_deg", quad_common::InRange(0, 180));
+      y.Get<double>("ground_contact.crash_tilt_deg", quad_core::InRange(0, 180));
 
-  const int width = y.Get<int>("camera.width", quad_common::InRange(1, 8192));
-  const int height = y.Get<int>("camera.height", quad_common::InRange(1, 8192));
+  const int width = y.Get<int>("camera.width", quad_core::InRange(1, 8192));
+  const int height = y.Get<int>("camera.height", quad_core::InRange(1, 8192));
   c.camera.intrinsics = DepthCameraConfig::FastPlannerFov(width, height);
   c.camera.rate_hz = y.Get<double>("camera.rate_hz", Positive());
   c.camera.min_depth_m = y.Get<double>("camera.min_depth_m", NonNegative());
@@ -123,7 +123,7 @@ SimConfig LoadSimConfig(const std::string& yaml_path) {
   const Eigen::Vector3d rpy = ReadVector3(&y, "camera.mount_rpy_deg") * kDegToRad;
   c.camera.q_body_camera = OpticalMountRotation(rpy.x(), rpy.y(), rpy.z());
   c.camera.noise_std_at_1m_m = y.Get<double>("camera.noise_std_at_1m_m", NonNegative());
-  c.camera.num_threads = y.Get<int>("camera.num_threads", quad_common::InRange(1, 64));
+  c.camera.num_threads = y.Get<int>("camera.num_threads", quad_core::InRange(1, 64));
 
   c.collision_policy = ReadEnum<CollisionPolicy, 2>(
       &y, "collision.policy",
@@ -142,17 +142,17 @@ SimConfig LoadSimConfig(const std::string& yaml_path) {
   c.world_file = Resolve(dir, y.Get<std::string>("world.file"));
   c.world_seed = y.Get<uint64_t>("world.seed");
   c.start_m = ReadVector3(&y, "world.start_m");
-  c.start_yaw_rad = y.Get<double>("world.start_yaw_deg", quad_common::InRange(-180.0, 180.0)) * kDegToRad;
+  c.start_yaw_rad = y.Get<double>("world.start_yaw_deg", quad_core::InRange(-180.0, 180.0)) * kDegToRad;
   c.goal_m = ReadVector3(&y, "world.goal_m");
   {
-    quad_common::StrictYaml gen(y.GetNode("world.generator"), yaml_path + ": world.generator");
+    quad_core::StrictYaml gen(y.GetNode("world.generator"), yaml_path + ": world.generator");
     c.world_gen = ReadWorldGenConfig(&gen);
     gen.CheckAllKeysUsed();
   }
   c.world_gen.AddClearZone(c.start_m);
   c.world_gen.AddClearZone(c.goal_m);
 
-  c.voxel_map.resolution_m = y.Get<double>("voxel_map.resolution_m", quad_common::InRange(0.01, 10.0));
+  c.voxel_map.resolution_m = y.Get<double>("voxel_map.resolution_m", quad_core::InRange(0.01, 10.0));
   c.octomap_file = y.Get<std::string>("voxel_map.octomap_file");
 
   c.spawn_frame.origin_world_m = ReadVector3(&y, "spawn_frame.origin_world_m");
@@ -174,7 +174,7 @@ SimConfig LoadSimConfig(const std::string& yaml_path) {
   try {
     c.Validate();
   } catch (const std::invalid_argument& e) {
-    throw quad_common::ConfigError(yaml_path + ": " + e.what());
+    throw quad_core::ConfigError(yaml_path + ": " + e.what());
   }
   return c;
 }

@@ -106,7 +106,7 @@ void Simulator::Reset(const World& world, const Eigen::Vector3d& p_start_world, 
   collision_checker_.SetWorld(world_);
   goal_world_ = goal_world;
 
-  state_ = VehicleState();
+  state_ = DynamicsState();
   state_.p_world_body = p_start_world;
   state_.q_world_body = start_box.q_world_box;
   const bool on_ground = lowest <= 1e-6;
@@ -218,7 +218,7 @@ void Simulator::Step() {
   command_stale_ =
       static_cast<double>(step_count_ - last_command_step_) * dt > config_.stale_command.timeout_s;
   motor_cmd_ = attitude_.MotorCommands(command_stale_ ? StaleTarget() : target_, state_);
-  const VehicleState next = dynamics_.Step(state_, motor_cmd_, dt);
+  const DynamicsState next = dynamics_.Step(state_, motor_cmd_, dt);
   ++step_count_;
   if (!next.AllFinite()) {
     // Cannot happen with validated commands and parameters; if it does, keep the last finite state.
@@ -311,11 +311,11 @@ void Simulator::CheckCollisions() {
   }
 }
 
-DepthImage Simulator::RenderDepth() {
+quad_core::DepthImage Simulator::RenderDepth() {
   Eigen::Vector3d p;
   Eigen::Quaterniond q;
   CameraPoseWorld(&p, &q);
-  DepthImage img = renderer_.Render(index_, p, q);
+  quad_core::DepthImage img = renderer_.Render(index_, p, q);
   renderer_.AddNoise(&img, &noise_rng_);
   return img;
 }
@@ -331,6 +331,14 @@ double Simulator::GroundHeightInSpawnFrame() const {
   // The engine's ground query: the point of the ground plane straight below the vehicle (boxes are ignored).
   const Eigen::Vector3d ground_world(state_.p_world_body.x(), state_.p_world_body.y(), 0.0);
   return spawn_frame_.ToSpawn(ground_world).z();
+}
+
+quad_core::VehicleState Simulator::Odometry(double z_offset_m, double t_s) const {
+  quad_core::VehicleState o = state_.Odometry(t_s);
+  const Eigen::Vector3d& origin = config_.spawn_frame.origin_world_m;
+  o.p_world_body = VehiclePositionInSpawnFrame() / config_.spawn_frame.units_per_m +
+                   Eigen::Vector3d(origin.x(), origin.y(), z_offset_m);
+  return o;
 }
 
 }  // namespace quad_sim

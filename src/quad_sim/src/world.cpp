@@ -2,7 +2,7 @@
 
 #include "quad_sim/math_utils.h"
 
-#include <quad_common/strict_yaml.h>
+#include <quad_core/strict_yaml.h>
 #include <yaml-cpp/yaml.h>
 
 #include <cmath>
@@ -30,12 +30,12 @@ std::string Str(const Eigen::Vector3d& v) {
   return s.str();
 }
 
-Eigen::Vector3d ReadVector3(quad_common::StrictYaml* y, const std::string& key,
-                            const quad_common::Check& check = nullptr) {
+Eigen::Vector3d ReadVector3(quad_core::StrictYaml* y, const std::string& key,
+                            const quad_core::Check& check = nullptr) {
   const std::vector<double> v = y->Get<std::vector<double>>(key, check);
   if (v.size() != 3) {
-    throw quad_common::ConfigError(y->source() + ": key '" + key + "' must be a list of 3 numbers, got " +
-                                   std::to_string(v.size()));
+    throw quad_core::ConfigError(y->source() + ": key '" + key + "' must be a list of 3 numbers, got " +
+                                 std::to_string(v.size()));
   }
   return Eigen::Vector3d(v[0], v[1], v[2]);
 }
@@ -167,9 +167,9 @@ World GenerateWorld(const WorldGenConfig& config, uint64_t seed) {
   return world;
 }
 
-WorldGenConfig ReadWorldGenConfig(quad_common::StrictYaml* y) {
-  using quad_common::NonNegative;
-  using quad_common::Positive;
+WorldGenConfig ReadWorldGenConfig(quad_core::StrictYaml* y) {
+  using quad_core::NonNegative;
+  using quad_core::Positive;
   WorldGenConfig c;
   c.bounds_min_m = ReadVector3(y, "bounds_min_m");
   c.bounds_max_m = ReadVector3(y, "bounds_max_m");
@@ -179,14 +179,14 @@ WorldGenConfig ReadWorldGenConfig(quad_common::StrictYaml* y) {
   c.size_max_m = ReadVector3(y, "size_max_m", Positive());
   c.center_z_min_m = y->Get<double>("center_z_min_m");
   c.center_z_max_m = y->Get<double>("center_z_max_m");
-  c.max_roll_deg = y->Get<double>("max_roll_deg", quad_common::InRange(0.0, 180.0));
-  c.max_pitch_deg = y->Get<double>("max_pitch_deg", quad_common::InRange(0.0, 90.0));
+  c.max_roll_deg = y->Get<double>("max_roll_deg", quad_core::InRange(0.0, 180.0));
+  c.max_pitch_deg = y->Get<double>("max_pitch_deg", quad_core::InRange(0.0, 90.0));
   c.min_gap_m = y->Get<double>("min_gap_m", NonNegative());
-  c.max_attempts_per_box = y->Get<int>("max_attempts_per_box", quad_common::AtLeast(1));
+  c.max_attempts_per_box = y->Get<int>("max_attempts_per_box", quad_core::AtLeast(1));
   c.clear_radius_m = y->Get<double>("clear_radius_m", NonNegative());
   const YAML::Node zones = y->GetNode("clear_zone_centers_m");
   if (!zones.IsSequence()) {
-    throw quad_common::ConfigError(y->source() + ": key 'clear_zone_centers_m' must be a list of [x, y, z]");
+    throw quad_core::ConfigError(y->source() + ": key 'clear_zone_centers_m' must be a list of [x, y, z]");
   }
   for (size_t i = 0; i < zones.size(); ++i) {
     std::vector<double> v;
@@ -196,15 +196,15 @@ WorldGenConfig ReadWorldGenConfig(quad_common::StrictYaml* y) {
       v.clear();
     }
     if (v.size() != 3 || !Eigen::Vector3d(v[0], v[1], v[2]).allFinite()) {
-      throw quad_common::ConfigError(y->source() + ": key 'clear_zone_centers_m' element " +
-                                     std::to_string(i) + " must be a finite [x, y, z]");
+      throw quad_core::ConfigError(y->source() + ": key 'clear_zone_centers_m' element " + std::to_string(i) +
+                                   " must be a finite [x, y, z]");
     }
     c.AddClearZone(Eigen::Vector3d(v[0], v[1], v[2]));
   }
   try {
     c.Validate();
   } catch (const std::invalid_argument& e) {
-    throw quad_common::ConfigError(y->source() + ": " + e.what());
+    throw quad_core::ConfigError(y->source() + ": " + e.what());
   }
   return c;
 }
@@ -240,16 +240,16 @@ std::string WorldToYaml(const World& world) {
 
 namespace {
 
-World WorldFromStrict(quad_common::StrictYaml* y) {
+World WorldFromStrict(quad_core::StrictYaml* y) {
   const std::string format = y->Get<std::string>("format");
   if (format != "quad_sim_world") {
-    throw quad_common::ConfigError(y->source() + ": key 'format' has value '" + format +
-                                   "' which is not 'quad_sim_world'");
+    throw quad_core::ConfigError(y->source() + ": key 'format' has value '" + format +
+                                 "' which is not 'quad_sim_world'");
   }
   const int version = y->Get<int>("version");
   if (version != 1) {
-    throw quad_common::ConfigError(y->source() + ": key 'version' has value " + std::to_string(version) +
-                                   " but this reader supports version 1");
+    throw quad_core::ConfigError(y->source() + ": key 'version' has value " + std::to_string(version) +
+                                 " but this reader supports version 1");
   }
   World w;
   w.seed = y->Get<uint64_t>("seed");
@@ -257,22 +257,22 @@ World WorldFromStrict(quad_common::StrictYaml* y) {
   w.bounds_max_m = ReadVector3(y, "bounds_max_m");
   const YAML::Node boxes = y->GetNode("boxes");
   if (!boxes.IsSequence() && !boxes.IsNull()) {
-    throw quad_common::ConfigError(y->source() + ": key 'boxes' must be a list");
+    throw quad_core::ConfigError(y->source() + ": key 'boxes' must be a list");
   }
   for (size_t i = 0; i < boxes.size(); ++i) {
-    quad_common::StrictYaml b(boxes[i], y->source() + ": boxes[" + std::to_string(i) + "]");
+    quad_core::StrictYaml b(boxes[i], y->source() + ": boxes[" + std::to_string(i) + "]");
     OrientedBox box;
     box.center_world_m = ReadVector3(&b, "center_m");
     const std::vector<double> q = b.Get<std::vector<double>>("q_xyzw");
     if (q.size() != 4)
-      throw quad_common::ConfigError(b.source() + ": key 'q_xyzw' must be a list of 4 numbers");
+      throw quad_core::ConfigError(b.source() + ": key 'q_xyzw' must be a list of 4 numbers");
     box.q_world_box = Eigen::Quaterniond(q[3], q[0], q[1], q[2]);
     const double n = box.q_world_box.norm();
-    if (n < 1e-6) throw quad_common::ConfigError(b.source() + ": key 'q_xyzw' is a zero quaternion");
+    if (n < 1e-6) throw quad_core::ConfigError(b.source() + ": key 'q_xyzw' is a zero quaternion");
     // Hand-written files may carry rounded quaternions; generated ones are unit to the last bit and kept as
     // is.
     if (std::abs(n - 1.0) > 1e-12) box.q_world_box.normalize();
-    box.size_m = ReadVector3(&b, "size_m", quad_common::Positive());
+    box.size_m = ReadVector3(&b, "size_m", quad_core::Positive());
     b.CheckAllKeysUsed();
     w.boxes.push_back(box);
   }
@@ -280,7 +280,7 @@ World WorldFromStrict(quad_common::StrictYaml* y) {
   try {
     w.Validate();
   } catch (const std::invalid_argument& e) {
-    throw quad_common::ConfigError(y->source() + ": " + e.what());
+    throw quad_core::ConfigError(y->source() + ": " + e.what());
   }
   return w;
 }
@@ -288,12 +288,12 @@ World WorldFromStrict(quad_common::StrictYaml* y) {
 }  // namespace
 
 World WorldFromYaml(const std::string& text, const std::string& source) {
-  quad_common::StrictYaml y = quad_common::StrictYaml::FromString(text, source);
+  quad_core::StrictYaml y = quad_core::StrictYaml::FromString(text, source);
   return WorldFromStrict(&y);
 }
 
 World LoadWorld(const std::string& path) {
-  quad_common::StrictYaml y = quad_common::StrictYaml::FromFile(path);
+  quad_core::StrictYaml y = quad_core::StrictYaml::FromFile(path);
   return WorldFromStrict(&y);
 }
 

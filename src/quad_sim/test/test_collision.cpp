@@ -26,8 +26,8 @@ OrientedBox Box(const Eigen::Vector3d& c, const Eigen::Vector3d& size, double ya
 // Position PD on the SO(3) interface (a stand-in for the tracker): flies towards p_ref at v_ref, yaw 0.
 quad_sim::So3Command Follow(const Simulator& sim, const Eigen::Vector3d& p_ref,
                             const Eigen::Vector3d& v_ref) {
-  const quad_sim::VehicleParams& p = sim.config().vehicle;
-  const quad_sim::VehicleState& s = sim.state();
+  const quad_core::VehicleParams& p = sim.config().vehicle;
+  const quad_sim::DynamicsState& s = sim.state();
   const Eigen::Vector3d a = 6.0 * (p_ref - s.p_world_body) + 4.0 * (v_ref - s.v_world);
   quad_sim::So3Command c;
   c.force_world_N = p.mass_kg * (a + Eigen::Vector3d(0, 0, p.gravity_mps2));

@@ -14,8 +14,8 @@
 #include <limits>
 #include <random>
 
+using quad_core::DepthImage;
 using quad_sim::DepthCameraConfig;
-using quad_sim::DepthImage;
 using quad_sim::DepthRenderer;
 using quad_sim::OrientedBox;
 using quad_sim::World;
@@ -49,7 +49,7 @@ Eigen::Quaterniond LookAlongX() { return quad_sim::OpticalMountRotation(0, 0, 0)
 // Independent reference: intersect the pixel's ray with each face plane of each box (point-in-rectangle test
 // in the face's own coordinates) and with the ground plane; depth = (hit - o) . optical axis.
 double ReferenceDepth(const World& world, const Eigen::Vector3d& o, const Eigen::Matrix3d& R_wc,
-                      const quad_sim::CameraIntrinsics& k, int u, int v, double max_depth) {
+                      const quad_core::CameraIntrinsics& k, int u, int v, double max_depth) {
   const Eigen::Vector3d dir = R_wc * Eigen::Vector3d((u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0);
   const Eigen::Vector3d axis = R_wc.col(2);
   double best = kInf;
@@ -86,14 +86,14 @@ int ExpectMatchesReference(const World& world, const Eigen::Vector3d& o, const E
   WorldIndex index;
   index.Build(world);
   const DepthRenderer renderer(cfg);
-  const DepthImage img = renderer.Render(index, o, q_wc);
+  const quad_core::DepthImage img = renderer.Render(index, o, q_wc);
   const Eigen::Matrix3d R = q_wc.toRotationMatrix();
   int box_pixels = 0;
   int mismatches = 0;
   for (int v = 0; v < img.height; ++v) {
     for (int u = 0; u < img.width; ++u) {
       const double ref = ReferenceDepth(world, o, R, cfg.intrinsics, u, v, cfg.max_depth_m);
-      const double got = img.at(u, v);
+      const double got = img.at(v, u);
       const bool ok = std::isinf(ref) ? (std::isinf(got) && got > 0) : std::abs(got - ref) <= 1e-3;
       if (!ok && ++mismatches <= 5)
         ADD_FAILURE() << "pixel (" << u << ", " << v << "): " << got << " vs " << ref;
@@ -131,11 +131,11 @@ TEST(DepthCamera, BoxStraightAheadAt3m) {
   // The centre of a face-on wall: exactly 3 m at the four central pixels (symmetric principal point).
   WorldIndex index;
   index.Build(world);
-  const DepthImage img = DepthRenderer(cfg).Render(index, o, LookAlongX());
-  EXPECT_FLOAT_EQ(img.at(159, 119), 3.0f);
-  EXPECT_FLOAT_EQ(img.at(160, 120), 3.0f);
+  const quad_core::DepthImage img = DepthRenderer(cfg).Render(index, o, LookAlongX());
+  EXPECT_FLOAT_EQ(img.at(119, 159), 3.0f);
+  EXPECT_FLOAT_EQ(img.at(120, 160), 3.0f);
   // A face-on wall has the same depth (not range) everywhere on it.
-  EXPECT_FLOAT_EQ(img.at(120, 100), 3.0f);
+  EXPECT_FLOAT_EQ(img.at(100, 120), 3.0f);
 }
 
 TEST(DepthCamera, BoxRotated30Degrees) {
@@ -158,7 +158,7 @@ TEST(DepthCamera, PartialOcclusion) {
   // Both boxes are visible: some pixels near 3 m (occluder), some at 5.5 m (wall behind it).
   WorldIndex index;
   index.Build(world);
-  const DepthImage img = DepthRenderer(cfg).Render(index, o, LookAlongX());
+  const quad_core::DepthImage img = DepthRenderer(cfg).Render(index, o, LookAlongX());
   int near = 0, far = 0;
   for (float z : img.depth_m) {
     if (z > 2.0f && z < 3.5f) ++near;
@@ -186,19 +186,19 @@ TEST(DepthCamera, Rep118NoReturnIsPositiveInfAndTooCloseIsNegativeInf) {
   cfg.max_depth_m = 5.0;
   const DepthRenderer r(cfg);
   // Looking up at the sky from high above: no return anywhere.
-  const DepthImage sky =
+  const quad_core::DepthImage sky =
       r.Render(index, Eigen::Vector3d(0, 0, 100.0), quad_sim::OpticalMountRotation(0, -1.2, 0));
   for (float z : sky.depth_m) EXPECT_TRUE(std::isinf(z) && z > 0);
   // A box face 5 cm ahead: closer than min_depth_m -> -Inf.
-  const DepthImage close = r.Render(index, Eigen::Vector3d(0, 0, 10.0), LookAlongX());
-  EXPECT_TRUE(std::isinf(close.at(32, 24)) && close.at(32, 24) < 0);
+  const quad_core::DepthImage close = r.Render(index, Eigen::Vector3d(0, 0, 10.0), LookAlongX());
+  EXPECT_TRUE(std::isinf(close.at(24, 32)) && close.at(24, 32) < 0);
   // The ground 6 m below a camera looking straight down is beyond max_depth_m = 5: +Inf.
-  const DepthImage down =
+  const quad_core::DepthImage down =
       r.Render(index, Eigen::Vector3d(20, 0, 6.0), quad_sim::OpticalMountRotation(0, kPi / 2, 0));
-  EXPECT_TRUE(std::isinf(down.at(32, 24)) && down.at(32, 24) > 0);
-  const DepthImage down4 =
+  EXPECT_TRUE(std::isinf(down.at(24, 32)) && down.at(24, 32) > 0);
+  const quad_core::DepthImage down4 =
       r.Render(index, Eigen::Vector3d(20, 0, 4.0), quad_sim::OpticalMountRotation(0, kPi / 2, 0));
-  EXPECT_FLOAT_EQ(down4.at(10, 5), 4.0f);  // flat ground seen straight down: constant depth
+  EXPECT_FLOAT_EQ(down4.at(5, 10), 4.0f);  // flat ground seen straight down: constant depth
 }
 
 TEST(DepthCamera, DbvtTraversalEqualsBruteForceInTheDefaultWorld) {
@@ -240,8 +240,8 @@ TEST(DepthCamera, ThreadCountDoesNotChangeTheImage) {
   WorldIndex index;
   index.Build(world);
   const Eigen::Vector3d o(-15, 0, 1.5);
-  const DepthImage a = DepthRenderer(Camera(160, 120, 1)).Render(index, o, LookAlongX());
-  const DepthImage b = DepthRenderer(Camera(160, 120, 2)).Render(index, o, LookAlongX());
+  const quad_core::DepthImage a = DepthRenderer(Camera(160, 120, 1)).Render(index, o, LookAlongX());
+  const quad_core::DepthImage b = DepthRenderer(Camera(160, 120, 2)).Render(index, o, LookAlongX());
   ASSERT_EQ(a.depth_m.size(), b.depth_m.size());
   EXPECT_EQ(0, std::memcmp(a.depth_m.data(), b.depth_m.data(), a.depth_m.size() * sizeof(float)));
 }
@@ -256,8 +256,8 @@ TEST(DepthCamera, GaussianNoiseIsSeededAndHasTheConfiguredSpread) {
   cfg.noise_std_at_1m_m = 0.002;  // sigma = 0.002 * 3^2 = 0.018 m on the wall
   const DepthRenderer r(cfg);
   const Eigen::Vector3d o(0, 0, 20.0);
-  DepthImage a = r.Render(index, o, LookAlongX());
-  DepthImage b = a;
+  quad_core::DepthImage a = r.Render(index, o, LookAlongX());
+  quad_core::DepthImage b = a;
   std::mt19937_64 rng_a(5), rng_b(5);
   r.AddNoise(&a, &rng_a);
   r.AddNoise(&b, &rng_b);
@@ -278,14 +278,14 @@ TEST(DepthCamera, SimulatorRendersFromTheConfiguredMount) {
   World world;
   world.boxes.push_back(Box(Eigen::Vector3d(3.5, 0, 1.5), Eigen::Vector3d(1.0, 2.0, 2.0)));
   sim.Reset(world, Eigen::Vector3d(0, 0, 1.5), 0.0, Eigen::Vector3d(-10, 0, 1));
-  const DepthImage img = sim.RenderDepth();
+  const quad_core::DepthImage img = sim.RenderDepth();
   ASSERT_EQ(img.width, 320);
   // Wall at x = 3.0, camera 0.1 m ahead of the centre of mass.
-  EXPECT_FLOAT_EQ(img.at(160, 120), static_cast<float>(3.0 - cfg.camera.p_body_camera_m.x()));
+  EXPECT_FLOAT_EQ(img.at(120, 160), static_cast<float>(3.0 - cfg.camera.p_body_camera_m.x()));
   // Yawed by 90 degrees the camera looks along +y: nothing there but the ground.
   sim.Reset(world, Eigen::Vector3d(0, 0, 1.5), kPi / 2, Eigen::Vector3d(-10, 0, 1));
-  const DepthImage side = sim.RenderDepth();
-  EXPECT_TRUE(std::isinf(side.at(160, 60)));
+  const quad_core::DepthImage side = sim.RenderDepth();
+  EXPECT_TRUE(std::isinf(side.at(60, 160)));
 }
 
 TEST(DepthCamera, RasterisedRenderEqualsPerPixelTreeRayCastInTheDefaultWorld) {
@@ -302,14 +302,14 @@ TEST(DepthCamera, RasterisedRenderEqualsPerPixelTreeRayCastInTheDefaultWorld) {
   for (int k = 0; k < 30; ++k) {
     const Eigen::Vector3d o(18 * u(rng), 18 * u(rng), 2.0 + 1.8 * u(rng));
     const Eigen::Quaterniond q = quad_sim::OpticalMountRotation(0.3 * u(rng), 0.5 * u(rng), kPi * u(rng));
-    const DepthImage img = renderer.Render(index, o, q);
+    const quad_core::DepthImage img = renderer.Render(index, o, q);
     const Eigen::Matrix3d R = q.toRotationMatrix();
     for (int v = 0; v < img.height; ++v) {
       for (int x = 0; x < img.width; ++x) {
         const Eigen::Vector3d d = R * Eigen::Vector3d((x - cfg.intrinsics.cx) / cfg.intrinsics.fx,
                                                       (v - cfg.intrinsics.cy) / cfg.intrinsics.fy, 1);
         const quad_sim::RayHit hit = index.CastRay(o, d, cfg.max_depth_m);
-        const float got = img.at(x, v);
+        const float got = img.at(v, x);
         if (hit.box_index == quad_sim::kHitNone) {
           ASSERT_TRUE(std::isinf(got) && got > 0)
               << "pose " << k << " pixel " << x << "," << v << ": " << got;

@@ -10,16 +10,16 @@
 
 #include <cmath>
 
+using quad_core::VehicleParams;
+using quad_sim::DynamicsState;
 using quad_sim::QuadrotorDynamics;
 using quad_sim::Simulator;
-using quad_sim::VehicleParams;
-using quad_sim::VehicleState;
 
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
 
-quad_sim::So3Command LevelHover(const VehicleParams& p, double yaw = 0.0) {
+quad_sim::So3Command LevelHover(const quad_core::VehicleParams& p, double yaw = 0.0) {
   quad_sim::So3Command c;
   c.force_world_N = Eigen::Vector3d(0, 0, p.mass_kg * p.gravity_mps2);
   c.q_world_des = quad_sim::QuatFromRpy(0, 0, yaw);
@@ -37,7 +37,7 @@ std::unique_ptr<Simulator> HoveringSim(const Eigen::Vector3d& p) {
 
 TEST(Dynamics, HoverAtTrimThrustHoldsAltitudeWithin1mmOver10s) {
   auto sim = HoveringSim(Eigen::Vector3d(1.0, -2.0, 2.0));
-  const VehicleParams& p = sim->config().vehicle;
+  const quad_core::VehicleParams& p = sim->config().vehicle;
   double max_dev = 0.0;
   while (sim->time_s() < 10.0) {
     if (sim->OdometryDue()) {
@@ -54,7 +54,7 @@ TEST(Dynamics, HoverAtTrimThrustHoldsAltitudeWithin1mmOver10s) {
 
 TEST(Dynamics, HoverWithTrpyAtTrimThrustHoldsAltitude) {
   auto sim = HoveringSim(Eigen::Vector3d(0.0, 0.0, 3.0));
-  const VehicleParams& p = sim->config().vehicle;
+  const quad_core::VehicleParams& p = sim->config().vehicle;
   quad_sim::TrpyCommand c;
   c.thrust_N = p.mass_kg * p.gravity_mps2;
   c.yaw_rad = 0.0;
@@ -68,10 +68,10 @@ TEST(Dynamics, HoverWithTrpyAtTrimThrustHoldsAltitude) {
 }
 
 TEST(Dynamics, FreeFallMatchesGravity) {
-  VehicleParams p = quad_sim_test::DefaultVehicle();
+  quad_core::VehicleParams p = quad_sim_test::DefaultVehicle();
   p.drag_coeff_Ns_per_m.setZero();
   const QuadrotorDynamics dyn(p, quad_sim::GroundContactParams());
-  VehicleState s;
+  DynamicsState s;
   s.p_world_body = Eigen::Vector3d(0, 0, 100.0);
   s.v_world = Eigen::Vector3d(1.0, 0.0, 2.0);
   const double dt = 0.001;
@@ -86,9 +86,9 @@ TEST(Dynamics, FreeFallMatchesGravity) {
 }
 
 TEST(Dynamics, LinearDragDecaysHorizontalVelocityExponentially) {
-  const VehicleParams p = quad_sim_test::DefaultVehicle();
+  const quad_core::VehicleParams p = quad_sim_test::DefaultVehicle();
   const QuadrotorDynamics dyn(p, quad_sim::GroundContactParams());
-  VehicleState s;
+  DynamicsState s;
   s.p_world_body = Eigen::Vector3d(0, 0, 10.0);
   s.v_world = Eigen::Vector3d(5.0, 0.0, 0.0);
   s.motor_speeds_radps.setConstant(p.HoverMotorSpeedRadps());
@@ -101,9 +101,9 @@ TEST(Dynamics, LinearDragDecaysHorizontalVelocityExponentially) {
 }
 
 TEST(Dynamics, MotorsFollowFirstOrderLag) {
-  const VehicleParams p = quad_sim_test::DefaultVehicle();
+  const quad_core::VehicleParams p = quad_sim_test::DefaultVehicle();
   const QuadrotorDynamics dyn(p, quad_sim::GroundContactParams());
-  VehicleState s;
+  DynamicsState s;
   s.p_world_body = Eigen::Vector3d(0, 0, 1e4);
   const Eigen::Vector4d cmd(2000.0, 1500.0, 1000.0, 500.0);
   for (int k = 1; k <= 100; ++k) {
@@ -118,12 +118,12 @@ TEST(Dynamics, MotorsFollowFirstOrderLag) {
 }
 
 TEST(Dynamics, QuaternionStaysUnitAndTorqueFreeTumbleConservesMomentumOver1e6Steps) {
-  VehicleParams p = quad_sim_test::DefaultVehicle();
+  quad_core::VehicleParams p = quad_sim_test::DefaultVehicle();
   // An asymmetric body makes the torque-free motion non-trivial (Euler's equations couple the axes).
   p.inertia_kgm2.diagonal() << 2.0e-3, 3.0e-3, 4.5e-3;
   p.drag_coeff_Ns_per_m.setZero();
   const QuadrotorDynamics dyn(p, quad_sim::GroundContactParams());
-  VehicleState s;
+  DynamicsState s;
   s.p_world_body = Eigen::Vector3d(0, 0, 1e7);  // falls 4.9e6 m in 1000 s: never reaches the ground
   s.w_body = Eigen::Vector3d(2.0, -0.05, 1.0);  // mostly about the minor axis, with a wobble
   const Eigen::Matrix3d& J = p.inertia_kgm2;
@@ -141,9 +141,9 @@ TEST(Dynamics, QuaternionStaysUnitAndTorqueFreeTumbleConservesMomentumOver1e6Ste
 }
 
 TEST(Dynamics, SteadySpinAboutPrincipalAxisMatchesClosedForm) {
-  VehicleParams p = quad_sim_test::DefaultVehicle();
+  quad_core::VehicleParams p = quad_sim_test::DefaultVehicle();
   const QuadrotorDynamics dyn(p, quad_sim::GroundContactParams());
-  VehicleState s;
+  DynamicsState s;
   s.p_world_body = Eigen::Vector3d(0, 0, 1e4);
   s.w_body = Eigen::Vector3d(0, 0, 3.0);
   for (int k = 0; k < 10000; ++k) s = dyn.Step(s, Eigen::Vector4d::Zero(), 0.001);
@@ -153,7 +153,7 @@ TEST(Dynamics, SteadySpinAboutPrincipalAxisMatchesClosedForm) {
 
 TEST(AttitudeController, CommandedRollStepSettles) {
   auto sim = HoveringSim(Eigen::Vector3d(0.0, 0.0, 5.0));
-  const VehicleParams& p = sim->config().vehicle;
+  const quad_core::VehicleParams& p = sim->config().vehicle;
   const double roll = 20.0 * kPi / 180.0;
   quad_sim::So3Command c;
   c.q_world_des = quad_sim::QuatFromRpy(roll, 0.0, 0.0);
@@ -182,7 +182,7 @@ TEST(AttitudeController, CommandedRollStepSettles) {
 
 TEST(AttitudeController, CommandedYawStepSettles) {
   auto sim = HoveringSim(Eigen::Vector3d(0.0, 0.0, 5.0));
-  const VehicleParams& p = sim->config().vehicle;
+  const quad_core::VehicleParams& p = sim->config().vehicle;
   const double yaw = 60.0 * kPi / 180.0;
   while (sim->time_s() < 2.0) {
     if (sim->OdometryDue()) {
@@ -195,9 +195,9 @@ TEST(AttitudeController, CommandedYawStepSettles) {
 }
 
 TEST(AttitudeController, LevelAttitudeAtRestGivesEqualRotorSpeeds) {
-  const VehicleParams p = quad_sim_test::DefaultVehicle();
+  const quad_core::VehicleParams p = quad_sim_test::DefaultVehicle();
   const quad_sim::AttitudeController ctl(p);
-  VehicleState s;
+  DynamicsState s;
   const Eigen::Vector4d w = ctl.MotorCommands(quad_sim::AttitudeTarget::FromSo3(LevelHover(p)), s);
   for (int i = 0; i < 4; ++i) EXPECT_NEAR(w(i), p.HoverMotorSpeedRadps(), 1e-9);
   // Projected force: with the body tilted by 30 deg, the thrust is F . (R e3).
@@ -210,7 +210,7 @@ TEST(AttitudeController, LevelAttitudeAtRestGivesEqualRotorSpeeds) {
 
 TEST(GroundContact, VehicleRestsOnGroundAndTakesOff) {
   auto sim = std::make_unique<Simulator>(quad_sim_test::DefaultSimConfig());
-  const VehicleParams& p = sim->config().vehicle;
+  const quad_core::VehicleParams& p = sim->config().vehicle;
   sim->Reset(quad_sim::World(), Eigen::Vector3d(0, 0, 0.125), 0.3, Eigen::Vector3d(50, 0, 1));
   // Motors off for 2 s: the vehicle settles with a sub-millimetre sink and stays put.
   while (sim->time_s() < 2.0) sim->Step();
@@ -238,7 +238,7 @@ TEST(GroundContact, VehicleRestsOnGroundAndTakesOff) {
 
 TEST(StaleCommand, VehicleLandsGentlyAndCutsMotors) {
   auto sim = HoveringSim(Eigen::Vector3d(2.0, 2.0, 2.0));
-  const VehicleParams& p = sim->config().vehicle;
+  const quad_core::VehicleParams& p = sim->config().vehicle;
   // Commands for 0.5 s, then silence: the onboard controller must land at descent_rate_mps and stop the
   // motors.
   while (sim->time_s() < 0.5) {

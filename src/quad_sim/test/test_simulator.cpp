@@ -5,7 +5,7 @@
 #include "test_util.h"
 
 #include <gtest/gtest.h>
-#include <quad_common/strict_yaml.h>
+#include <quad_core/strict_yaml.h>
 
 #include <cstring>
 #include <limits>
@@ -30,14 +30,14 @@ OrientedBox Box(const Eigen::Vector3d& c, const Eigen::Vector3d& size, double ya
   return b;
 }
 
-quad_sim::So3Command Climb(const quad_sim::VehicleParams& p) {
+quad_sim::So3Command Climb(const quad_core::VehicleParams& p) {
   quad_sim::So3Command c;
   c.force_world_N = Eigen::Vector3d(0.3, -0.2, 1.2 * p.mass_kg * p.gravity_mps2);
   c.q_world_des = quad_sim::QuatFromRpy(0.05, -0.03, 0.2);
   return c;
 }
 
-bool SameState(const quad_sim::VehicleState& a, const quad_sim::VehicleState& b) {
+bool SameState(const quad_sim::DynamicsState& a, const quad_sim::DynamicsState& b) {
   return a.p_world_body == b.p_world_body && a.v_world == b.v_world &&
          a.q_world_body.coeffs() == b.q_world_body.coeffs() && a.w_body == b.w_body &&
          a.motor_speeds_radps == b.motor_speeds_radps;
@@ -58,7 +58,7 @@ void ExpectSimConfigError(const std::string& text, const std::string& needle) {
   try {
     quad_sim::LoadSimConfig(f.path());
     FAIL() << "expected an error mentioning '" << needle << "'";
-  } catch (const quad_common::ConfigError& e) {
+  } catch (const quad_core::ConfigError& e) {
     EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
   }
 }
@@ -263,7 +263,7 @@ TEST(Determinism, SameSeedAndCommandsGiveBitIdenticalStatesAndDepth) {
                           s.q_world_body.coeffs().data() + 4);
       }
       if (sim.DepthDue()) {
-        const quad_sim::DepthImage img = sim.RenderDepth();
+        const quad_core::DepthImage img = sim.RenderDepth();
         depth_log->insert(depth_log->end(), img.depth_m.begin(), img.depth_m.end());
       }
       sim.Step();

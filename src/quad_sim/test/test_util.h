@@ -1,8 +1,8 @@
 // Helpers shared by the quad_sim gtests.
 #pragma once
 
+#include "quad_core/vehicle_params.h"
 #include "quad_sim/sim_config.h"
-#include "quad_sim/vehicle_params.h"
 
 #include <unistd.h>
 
@@ -15,8 +15,8 @@ namespace quad_sim_test {
 
 inline std::string RepoPath(const std::string& rel) { return std::string(QUAD_IL_ROOT) + "/" + rel; }
 
-inline quad_sim::VehicleParams DefaultVehicle() {
-  return quad_sim::LoadVehicleParams(RepoPath("config/vehicle.yaml"));
+inline quad_core::VehicleParams DefaultVehicle() {
+  return quad_core::LoadVehicleParams(RepoPath("config/vehicle.yaml"));
 }
 
 inline quad_sim::SimConfig DefaultSimConfig() { return quad_sim::LoadSimConfig(RepoPath("config/sim.yaml")); }

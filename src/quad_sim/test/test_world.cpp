@@ -4,7 +4,7 @@
 #include "test_util.h"
 
 #include <gtest/gtest.h>
-#include <quad_common/strict_yaml.h>
+#include <quad_core/strict_yaml.h>
 
 #include <regex>
 #include <string>
@@ -22,7 +22,7 @@ void ExpectWorldError(const std::string& text, const std::string& needle) {
   try {
     quad_sim::WorldFromYaml(text, "test.yaml");
     FAIL() << "expected an error mentioning '" << needle << "'";
-  } catch (const quad_common::ConfigError& e) {
+  } catch (const quad_core::ConfigError& e) {
     EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
   }
 }

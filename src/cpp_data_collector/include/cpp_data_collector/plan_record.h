@@ -8,19 +8,14 @@
 #include <string_view>
 #include <vector>
 
+#include "quad_core/depth_image.h"
+
 namespace cpp_data_collector {
 
-// A depth image in metres (sensor_msgs/Image 32FC1 semantics, REP 118: +Inf too far, -Inf too near, NaN
-// invalid). Non-owning: `data_m` must stay valid only during the DatasetWriter::Record call, which copies it.
-struct DepthImageView {
-  const float* data_m = nullptr;
-  uint32_t width = 0;
-  uint32_t height = 0;
-  size_t row_stride_bytes = 0;  // 0 means rows are contiguous (width * sizeof(float))
-  double stamp_s = 0.0;         // the image's own stamp (sim time)
-};
-
-// The odometry sample the plan started from (frames and units: docs/CONVENTIONS.md).
+// The odometry sample the plan started from (frames and units: docs/CONVENTIONS.md). Not a second vehicle
+// state: this is the record's layout type, mirroring the on-disk fields of a record (docs/data_format.md:
+// plain arrays, quaternion normalised and stored x, y, z, w). The planner converts its
+// quad_core::VehicleState into it (fast_planner::ToOdometrySample).
 struct OdometrySample {
   double stamp_s = 0.0;
   std::array<double, 3> p_world_body{};
@@ -59,7 +54,9 @@ struct PlanRecord {
   int64_t episode_id = 0;
   uint64_t world_seed = 0;
   double sim_time_s = 0.0;  // sim time at which the plan was made
-  DepthImageView depth;
+  // Non-owning: the pixels must stay valid only during the DatasetWriter::Record call, which copies them.
+  quad_core::DepthImageView depth;
+  double depth_stamp_s = 0.0;  // the image's own stamp (sim time)
   OdometrySample odom;
   std::array<double, 3> goal_world{};
   BsplineData bspline;

@@ -25,7 +25,7 @@ struct SyntheticConfig {
   double invalid_pixel_fraction = 0.002;  // NaN pixels
 };
 
-// Owns the storage a PlanRecord views; not copyable because `record.depth.data_m` points into `depth_m`.
+// Owns the storage a PlanRecord views; not copyable because `record.depth.data` points into `depth_m`.
 struct SyntheticRecord {
   SyntheticRecord() = default;
   SyntheticRecord(const SyntheticRecord&) = delete;

@@ -4,7 +4,7 @@
 #include <cstdint>
 #include <string>
 
-#include "quad_common/strict_yaml.h"
+#include "quad_core/strict_yaml.h"
 
 namespace cpp_data_collector {
 
@@ -37,9 +37,9 @@ struct WriterConfig {
 };
 
 // Reads the keys of WriterConfig under `prefix` ("" for the top level, "collector" for a section). Every key
-// but output_dir and the image size has the default above. Throws quad_common::ConfigError naming key and
+// but output_dir and the image size has the default above. Throws quad_core::ConfigError naming key and
 // value. Does not call CheckAllKeysUsed (the caller owns the whole file).
-WriterConfig LoadWriterConfig(quad_common::StrictYaml* yaml, const std::string& prefix);
+WriterConfig LoadWriterConfig(quad_core::StrictYaml* yaml, const std::string& prefix);
 // A whole file holding only writer keys; unknown keys are errors.
 WriterConfig LoadWriterConfigFile(const std::string& path);
 

@@ -220,7 +220,7 @@ int main(int argc, char** argv) {
       } else {
         gen.Generate(i, &rec, cdc::DepthMode::kSkip);
         rec.depth_m = image_cache[i % image_cache.size()];
-        rec.record.depth.data_m = rec.depth_m.data();
+        rec.record.depth.data = rec.depth_m.data();
       }
       if (args.rate_hz > 0.0) {
         std::this_thread::sleep_until(start +

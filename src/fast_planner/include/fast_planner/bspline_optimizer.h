@@ -29,7 +29,7 @@ namespace fast_planner {
 constexpr int kSplineDegree = 3;
 
 // Control points of the uniform cubic B-spline with knot span ts_s (on the knots of
-// kr_tracker::NonUniformBspline::Uniform, valid domain [0, K ts_s], K = num rows - 3) fitted to the path:
+// quad_core::NonUniformBspline::Uniform, valid domain [0, K ts_s], K = num rows - 3) fitted to the path:
 // K = ceil(duration / ts_nominal_s) spans, ts_s = duration / K. The start position, velocity and acceleration
 // are met exactly (the first three control points follow from them in closed form); positions at the K knots
 // after the start and the end velocity and acceleration are matched by least squares (exactly, when fix_end,
@@ -79,7 +79,7 @@ struct OptimizationResult {
 
 class BsplineOptimizer {
  public:
-  // Throws quad_common::ConfigError on invalid optimiser or limit values.
+  // Throws quad_core::ConfigError on invalid optimiser or limit values.
   BsplineOptimizer(const OptimizerConfig& cfg, const LimitsConfig& limits);
 
   // Optimises the free control points of `ctrl_pts` (N x 3, N >= 4 + fixed). distance_weight_scale multiplies

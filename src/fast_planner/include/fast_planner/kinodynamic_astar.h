@@ -59,7 +59,7 @@ struct SearchResult {
 
 class KinodynamicAstar {
  public:
-  // Throws quad_common::ConfigError on invalid search or limit values.
+  // Throws quad_core::ConfigError on invalid search or limit values.
   KinodynamicAstar(const SearchConfig& search, const LimitsConfig& limits);
 
   // Searches from (start_p, start_v) to goal_p at rest. horizon_m <= 0 means the configured horizon. The

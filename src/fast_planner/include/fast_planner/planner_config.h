@@ -11,7 +11,7 @@
 
 #include <string>
 
-namespace quad_common {
+namespace quad_core {
 class StrictYaml;
 }
 
@@ -97,19 +97,34 @@ struct FsmConfig {
   bool replan_final_approach = false;
 };
 
+// Settings of the ROS node (fast_planner_node) alone; the in-process harnesses do not use them.
+struct NodeConfig {
+  // The simulator's odometry period: a depth frame is processed once the odometry of its control period has
+  // arrived (odometry_history.h).
+  double odom_period_s = 0.005;
+  // Wall time the node waits for the tracker to take a trajectory before acknowledging the frame (0: no
+  // wait); in lockstep the trajectory then takes effect at the same control period in every run.
+  double tracker_accept_timeout_s = 1.0;
+  // Labeller mode: labels start at the odometry's acceleration over this window (0: zero acceleration).
+  double label_acc_window_s = 0.05;
+  // The data collector's statistics are logged this often (wall time; 0: only at exit).
+  double collector_stats_period_s = 30.0;
+};
+
 struct PlannerConfig {
   LimitsConfig limits;
   MapConfig map;
   SearchConfig search;
   OptimizerConfig optimizer;
   FsmConfig fsm;
+  NodeConfig node;
 };
 
-// Loads config/planner.yaml. Throws quad_common::ConfigError naming the file, the key and the bad value.
+// Loads config/planner.yaml. Throws quad_core::ConfigError naming the file, the key and the bad value.
 PlannerConfig LoadPlannerConfig(const std::string& yaml_path);
 // Reads the planner keys from an open strict YAML document and checks that no key is left unread.
-PlannerConfig ReadPlannerConfig(quad_common::StrictYaml& y);
-// Throws quad_common::ConfigError (source "PlannerConfig") on a value out of range or inconsistent with
+PlannerConfig ReadPlannerConfig(quad_core::StrictYaml& y);
+// Throws quad_core::ConfigError (source "PlannerConfig") on a value out of range or inconsistent with
 // another; used after loading and by code that builds a PlannerConfig by hand (tests, benchmarks).
 void ValidatePlannerConfig(const PlannerConfig& cfg);
 // The sections alone (used by the constructors of the classes that take them); no cross-section checks.
@@ -118,5 +133,6 @@ void ValidateMapConfig(const MapConfig& cfg);
 void ValidateSearchConfig(const SearchConfig& cfg);
 void ValidateOptimizerConfig(const OptimizerConfig& cfg);
 void ValidateFsmConfig(const FsmConfig& cfg);
+void ValidateNodeConfig(const NodeConfig& cfg);
 
 }  // namespace fast_planner

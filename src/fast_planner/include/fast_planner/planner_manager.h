@@ -3,7 +3,8 @@
 // every successful plan with the exact inputs it used.
 #pragma once
 
-#include <kr_tracker/bspline.h>
+#include <quad_core/bspline.h>
+#include <quad_core/vehicle_state.h>
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
@@ -22,16 +23,10 @@
 
 namespace fast_planner {
 
-// Odometry as the planner uses it (nav_msgs/Odometry without ROS): world frame, twist in the world frame.
-struct Odometry {
-  double stamp_s = 0.0;
-  Eigen::Vector3d p_world_body = Eigen::Vector3d::Zero();
-  Eigen::Quaterniond q_world_body = Eigen::Quaterniond::Identity();
-  Eigen::Vector3d v_world = Eigen::Vector3d::Zero();
-  Eigen::Vector3d w_body = Eigen::Vector3d::Zero();
-};
-// "" when every field is finite and the quaternion is not zero, else the reason.
-std::string ValidateOdometry(const Odometry& odom);
+// The odometry is quad_core::VehicleState (nav_msgs/Odometry without ROS: twist in the world frame; its
+// acceleration fields are not used). "" when every field is finite and the quaternion is not zero, else the
+// reason (a check of its own, looser than VehicleState::AllFinite: any non-zero quaternion is normalised).
+std::string ValidateOdometry(const quad_core::VehicleState& odom);
 
 // The vehicle's acceleration at time t_s from an odometry history ordered by stamp (oldest first): the
 // velocity difference between the newest odometry at or before t_s and the newest one at least window_s older
@@ -39,8 +34,8 @@ std::string ValidateOdometry(const Odometry& odom);
 // max_acc_mps2. Zero when window_s <= 0 or the history holds no such pair. The labeller's plans start from it
 // (docs/fast_planner.md, "Labeller mode"): a plan started at zero acceleration while the vehicle accelerates
 // drops the tracker's feed-forward, and replanned every frame such plans never let the vehicle speed up.
-Eigen::Vector3d AccelerationFromOdometry(const std::deque<Odometry>& history, double t_s, double window_s,
-                                         double max_acc_mps2);
+Eigen::Vector3d AccelerationFromOdometry(const std::deque<quad_core::VehicleState>& history, double t_s,
+                                         double window_s, double max_acc_mps2);
 
 enum class PlanStatus {
   kSuccess,
@@ -77,7 +72,7 @@ struct PlanResult {
   int64_t traj_id = 0;
   double start_time_s = 0.0;
   // The trajectory (degree 3, t = 0 at start_time_s); set exactly when status == kSuccess.
-  std::optional<kr_tracker::NonUniformBspline> spline;
+  std::optional<quad_core::NonUniformBspline> spline;
   bool reaches_goal = false;     // ends at the goal at rest (else at the search horizon or a safe stop)
   bool ends_at_rest = false;     // at the goal, at a safe stop short of it, or an emergency stop
   bool start_state_kept = true;  // time re-allocation kept the start state exactly (see time_reallocation.h)
@@ -93,7 +88,7 @@ struct PlanResult {
 // What the data collector receives right after each successful plan: exactly what the plan used.
 struct PlanRecord {
   std::shared_ptr<const DepthFrame> depth;  // the last depth frame received before the plan (null if none)
-  std::optional<Odometry> odometry;         // the last odometry received before the plan
+  std::optional<quad_core::VehicleState> odometry;  // the last odometry received before the plan
   Eigen::Vector3d goal = Eigen::Vector3d::Zero();
   PlanRequest request;
   const PlanResult* result = nullptr;  // valid during the callback only
@@ -117,7 +112,7 @@ struct MapUpdateResult {
 
 class PlannerManager {
  public:
-  // Throws quad_common::ConfigError on an invalid configuration.
+  // Throws quad_core::ConfigError on an invalid configuration.
   explicit PlannerManager(const PlannerConfig& cfg);
 
   // Forgets the map, the last observations and the trajectory ids (a new episode).
@@ -128,7 +123,7 @@ class PlannerManager {
   // frame (for the observer). Throws std::invalid_argument on a malformed frame.
   MapUpdateResult UpdateDepth(std::shared_ptr<const DepthFrame> frame);
   // Remembers the odometry (for the observer). Throws std::invalid_argument on non-finite odometry.
-  void UpdateOdometry(const Odometry& odom);
+  void UpdateOdometry(const quad_core::VehicleState& odom);
   // Global source: marks the simulator's occupied voxels (world points); the ESDF is computed when planning.
   void SetGlobalMap(const std::vector<Eigen::Vector3d>& occupied_points_world);
 
@@ -148,7 +143,7 @@ class PlannerManager {
   // The first time t in [t_from, tmax] (spline time) at which the trajectory enters the inflated map, sampled
   // every optimizer.check_step_m of arc length; samples within the escape radius of escape_center may be
   // inflated but not occupied (leaving an inflated start). nullopt if it stays free.
-  std::optional<double> FirstCollision(const kr_tracker::NonUniformBspline& spline, double t_from,
+  std::optional<double> FirstCollision(const quad_core::NonUniformBspline& spline, double t_from,
                                        const Eigen::Vector3d& escape_center) const;
 
   void SetObserver(std::shared_ptr<PlanObserver> observer) { observer_ = std::move(observer); }
@@ -158,7 +153,7 @@ class PlannerManager {
   // With map.esdf_on_demand the ESDF is the one of the last Plan(), not necessarily of the latest frame.
   const Esdf& esdf() const { return esdf_; }
   std::shared_ptr<const DepthFrame> last_depth() const { return last_depth_; }
-  const std::optional<Odometry>& last_odometry() const { return last_odom_; }
+  const std::optional<quad_core::VehicleState>& last_odometry() const { return last_odom_; }
 
  private:
   // Makes sure the ESDF covers the box around both points (global source).
@@ -178,7 +173,7 @@ class PlannerManager {
   // esdf_on_demand: the window of the latest frame whose ESDF is not computed yet.
   std::optional<std::pair<Eigen::Vector3i, Eigen::Vector3i>> esdf_pending_;
   std::shared_ptr<const DepthFrame> last_depth_;
-  std::optional<Odometry> last_odom_;
+  std::optional<quad_core::VehicleState> last_odom_;
   std::shared_ptr<PlanObserver> observer_;
   int64_t next_traj_id_ = 1;
 };

@@ -31,7 +31,7 @@ struct ReplannerOutput {
 
 class Replanner {
  public:
-  // Throws quad_common::ConfigError on an invalid configuration.
+  // Throws quad_core::ConfigError on an invalid configuration.
   explicit Replanner(const PlannerConfig& cfg);
 
   PlannerManager& manager() { return manager_; }
@@ -42,7 +42,7 @@ class Replanner {
 
   // Remembers the odometry; the first one makes the machine leave kIdle. Throws std::invalid_argument (with
   // the reason) on non-finite odometry, which is then ignored.
-  ReplannerOutput OnOdometry(const Odometry& odom);
+  ReplannerOutput OnOdometry(const quad_core::VehicleState& odom);
 
   // Accepts a goal (returns "") or rejects it with the reason (outside the map, in or near an obstacle), in
   // which case nothing changes.

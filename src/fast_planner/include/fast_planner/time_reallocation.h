@@ -11,7 +11,7 @@
 // The geometry of the curve changes slightly with its knots; callers check collisions afterwards.
 #pragma once
 
-#include <kr_tracker/bspline.h>
+#include <quad_core/bspline.h>
 
 #include <string>
 
@@ -23,7 +23,7 @@ namespace fast_planner {
 enum class StartPolicy { kMayChange, kKeep };
 
 struct ReallocationResult {
-  kr_tracker::NonUniformBspline spline;
+  quad_core::NonUniformBspline spline;
   int iterations = 0;
   bool used_uniform_fallback = false;
   bool start_kept = true;  // false if keeping the start state had to be given up to meet the limits
@@ -40,12 +40,12 @@ struct ReallocationResult {
 // control points fixed by the start state alone (V_0, V_1, A_0) are then not checked, so within the first two
 // knot spans the limits hold only as well as the start state does. If that does not converge, the start is
 // given up (start_kept = false) and the plain procedure guarantees the limits everywhere.
-ReallocationResult ReallocateTime(const kr_tracker::NonUniformBspline& spline, const LimitsConfig& limits,
+ReallocationResult ReallocateTime(const quad_core::NonUniformBspline& spline, const LimitsConfig& limits,
                                   int max_iterations, double margin,
                                   StartPolicy start_policy = StartPolicy::kMayChange);
 
 // Largest |V_i| / v_max and |A_j| / a_max over the derivative control points (the convex-hull bounds).
-double MaxVelocityRatio(const kr_tracker::NonUniformBspline& spline, double max_vel_mps);
-double MaxAccelerationRatio(const kr_tracker::NonUniformBspline& spline, double max_acc_mps2);
+double MaxVelocityRatio(const quad_core::NonUniformBspline& spline, double max_vel_mps);
+double MaxAccelerationRatio(const quad_core::NonUniformBspline& spline, double max_acc_mps2);
 
 }  // namespace fast_planner

@@ -21,26 +21,19 @@
 #include <vector>
 
 #include "fast_planner/planner_config.h"
+#include "quad_core/camera.h"
+#include "quad_core/depth_image.h"
 
 namespace fast_planner {
 
-struct CameraIntrinsics {
-  int width = 0;
-  int height = 0;
-  double fx = 0.0;
-  double fy = 0.0;
-  double cx = 0.0;
-  double cy = 0.0;
-};
-
-// One depth frame as the planner integrates it: depth along the optical axis in metres, row-major (32FC1);
-// REP 118: NaN invalid, +Inf no return within range, -Inf too close. The pose is the camera optical frame
-// (z forward, x right, y down) in the world frame at the frame's stamp.
+// One depth frame as the planner integrates it: the image (quad_core::DepthImage: metres along the optical
+// axis, row-major, REP 118 NaN/+Inf/-Inf), the intrinsics it was taken with (same size) and the pose of the
+// camera optical frame (z forward, x right, y down) in the world frame at the frame's stamp.
 struct DepthFrame {
   double stamp_s = 0.0;
   uint64_t seq = 0;  // the simulator's frame counter (quad_msgs/FrameAck frame_seq), 0 if unknown
-  CameraIntrinsics intrinsics;
-  std::vector<float> depth_m;
+  quad_core::CameraIntrinsics intrinsics;
+  quad_core::DepthImage image;  // intrinsics.width x intrinsics.height
   Eigen::Vector3d p_world_camera = Eigen::Vector3d::Zero();
   Eigen::Quaterniond q_world_camera = Eigen::Quaterniond::Identity();
 };
@@ -57,7 +50,7 @@ struct MapUpdateStats {
 
 class VoxelMap {
  public:
-  // Throws quad_common::ConfigError if the map part of the config is invalid.
+  // Throws quad_core::ConfigError if the map part of the config is invalid.
   explicit VoxelMap(const MapConfig& cfg);
 
   // Forgets every observation (a new episode).

@@ -14,8 +14,8 @@
 #include <string>
 #include <vector>
 
-#include "kr_tracker/bspline.h"
 #include "kr_tracker/tracker.h"
+#include "quad_core/bspline.h"
 
 namespace kr_tracker {
 
@@ -57,17 +57,18 @@ class BsplineTracker : public Tracker {
  public:
   explicit BsplineTracker(const BsplineTrackerConfig& config);
   std::string name() const override { return "bspline"; }
-  void Activate(const PositionReference& last_ref, const VehicleState& state) override;
+  void Activate(const PositionReference& last_ref, const quad_core::VehicleState& state) override;
   // Aborts the running and pending goals (events) and stops.
   void Deactivate() override;
-  PositionReference Update(const VehicleState& state) override;
+  PositionReference Update(const quad_core::VehicleState& state) override;
   TrackerStatus status() const override;
 
   // Validates and queues a goal under the caller's id. now_s and state are the latest time and odometry.
   // Returns "" when accepted, else why it was rejected (nothing changes then). A goal accepted while another
   // one is pending replaces the pending one (which ends with kReplaced). Works whether or not the tracker is
   // active.
-  std::string AddGoal(uint64_t goal_id, const BsplineGoalSpec& spec, double now_s, const VehicleState& state);
+  std::string AddGoal(uint64_t goal_id, const BsplineGoalSpec& spec, double now_s,
+                      const quad_core::VehicleState& state);
   // Cancels a running or pending goal (the vehicle holds the current reference). False if the id is unknown.
   bool Cancel(uint64_t goal_id);
   // Aborts the running and the pending goal (kAborted events with `reason`; the pending one's reason says it
@@ -85,12 +86,12 @@ class BsplineTracker : public Tracker {
     uint64_t id = 0;
     int64_t traj_id = 0;
     double start_time_s = 0.0;
-    NonUniformBspline pos;
-    NonUniformBspline vel;
-    NonUniformBspline acc;
-    NonUniformBspline jerk;
-    std::optional<NonUniformBspline> yaw;
-    std::optional<NonUniformBspline> yaw_rate;
+    quad_core::NonUniformBspline pos;
+    quad_core::NonUniformBspline vel;
+    quad_core::NonUniformBspline acc;
+    quad_core::NonUniformBspline jerk;
+    std::optional<quad_core::NonUniformBspline> yaw;
+    std::optional<quad_core::NonUniformBspline> yaw_rate;
     double distance_m = 0.0;
     bool started = false;
   };
@@ -106,7 +107,7 @@ class BsplineTracker : public Tracker {
   std::vector<GoalEvent> events_;
   PositionReference last_ref_;
   bool has_last_state_ = false;
-  VehicleState last_state_;
+  quad_core::VehicleState last_state_;
   bool completed_ = false;
 };
 

@@ -1,6 +1,6 @@
 // Typed configuration of the tracker node (config/tracker.yaml), loaded strictly: missing or unknown keys and
-// out-of-range values throw quad_common::ConfigError naming the key and value. Mass and gravity are NOT here:
-// they come from config/vehicle.yaml through quad_sim::LoadVehicleParams, the file the simulator flies with.
+// out-of-range values throw quad_core::ConfigError naming the key and value. Mass and gravity are NOT here:
+// they come from config/vehicle.yaml through quad_core::LoadVehicleParams, the file the simulator flies with.
 #pragma once
 
 #include <string>
@@ -9,7 +9,7 @@
 #include "kr_tracker/line_tracker.h"
 #include "kr_tracker/so3_controller.h"
 
-namespace quad_common {
+namespace quad_core {
 class StrictYaml;
 }
 
@@ -31,6 +31,6 @@ struct TrackerConfig {
 };
 
 TrackerConfig LoadTrackerConfig(const std::string& yaml_path);
-TrackerConfig ReadTrackerConfig(quad_common::StrictYaml* y);
+TrackerConfig ReadTrackerConfig(quad_core::StrictYaml* y);
 
 }  // namespace kr_tracker

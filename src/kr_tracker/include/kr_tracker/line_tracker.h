@@ -48,9 +48,9 @@ class LineTracker : public Tracker {
  public:
   explicit LineTracker(const LineTrackerConfig& config);
   std::string name() const override { return "line"; }
-  void Activate(const PositionReference& last_ref, const VehicleState& state) override;
+  void Activate(const PositionReference& last_ref, const quad_core::VehicleState& state) override;
   void Deactivate() override;
-  PositionReference Update(const VehicleState& state) override;
+  PositionReference Update(const quad_core::VehicleState& state) override;
   TrackerStatus status() const override;
 
   // Sets a goal, flown from the current reference at the next Update. max_vel_mps / max_acc_mps2 <= 0 select

@@ -3,7 +3,7 @@
 
 #include <Eigen/Core>
 
-#include "kr_tracker/bspline.h"
+#include "quad_core/bspline.h"
 
 namespace kr_tracker {
 
@@ -21,9 +21,9 @@ struct FigureEightSpec {
 // with a smooth speed ramp (it starts and ends at rest at center_world; the first and last control points are
 // tripled so that velocity and acceleration are zero there). Knots start at t0_s. Throws
 // std::invalid_argument for non-positive sizes/speeds.
-NonUniformBspline MakeFigureEight(const FigureEightSpec& spec, double t0_s = 0.0);
+quad_core::NonUniformBspline MakeFigureEight(const FigureEightSpec& spec, double t0_s = 0.0);
 
 // Largest speed of a 3-D spline, sampled every dt_s.
-double SampledPeakSpeed(const NonUniformBspline& pos, double dt_s = 0.001);
+double SampledPeakSpeed(const quad_core::NonUniformBspline& pos, double dt_s = 0.001);
 
 }  // namespace kr_tracker

@@ -52,15 +52,15 @@ struct ControlOutput {
 
 class So3Controller {
  public:
-  // mass_kg, gravity_mps2 and max_thrust_N come from config/vehicle.yaml (quad_sim::LoadVehicleParams) in the
-  // node and tools. Throws std::invalid_argument for non-positive values, a usable thrust below the weight,
-  // or invalid gains.
+  // mass_kg, gravity_mps2 and max_thrust_N come from config/vehicle.yaml (quad_core::LoadVehicleParams) in
+  // the node and tools. Throws std::invalid_argument for non-positive values, a usable thrust below the
+  // weight, or invalid gains.
   So3Controller(const So3Gains& gains, double mass_kg, double gravity_mps2, double max_thrust_N);
 
   // One control step. dt_s weights the integral (0 disables its update). If an input or the result is not
   // finite the integral is left untouched and the hover command at the current yaw is returned with the
   // status.
-  ControlOutput Compute(const PositionReference& ref, const VehicleState& state, double dt_s);
+  ControlOutput Compute(const PositionReference& ref, const quad_core::VehicleState& state, double dt_s);
 
   // Thrust m g along world z, level attitude at the given yaw, zero rates: the safe fallback.
   So3Command HoverCommand(double yaw_rad) const;

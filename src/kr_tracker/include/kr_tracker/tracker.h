@@ -23,10 +23,10 @@ class Tracker {
   virtual std::string name() const = 0;
   // Starts from the reference the previous tracker produced last (continuity of position, velocity, yaw), or,
   // at start-up, PositionReference::Hold of the odometry.
-  virtual void Activate(const PositionReference& last_ref, const VehicleState& state) = 0;
+  virtual void Activate(const PositionReference& last_ref, const quad_core::VehicleState& state) = 0;
   virtual void Deactivate() = 0;
   // The reference for the odometry `state` (state.t_s is the time). Only called while active.
-  virtual PositionReference Update(const VehicleState& state) = 0;
+  virtual PositionReference Update(const quad_core::VehicleState& state) = 0;
   virtual TrackerStatus status() const = 0;
 };
 
@@ -34,9 +34,9 @@ class Tracker {
 class HoverTracker : public Tracker {
  public:
   std::string name() const override { return "hover"; }
-  void Activate(const PositionReference& last_ref, const VehicleState& state) override;
+  void Activate(const PositionReference& last_ref, const quad_core::VehicleState& state) override;
   void Deactivate() override { active_ = false; }
-  PositionReference Update(const VehicleState& state) override;
+  PositionReference Update(const quad_core::VehicleState& state) override;
   TrackerStatus status() const override {
     return active_ ? TrackerStatus::kHolding : TrackerStatus::kInactive;
   }

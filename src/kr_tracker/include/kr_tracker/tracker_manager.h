@@ -41,7 +41,7 @@ class TrackerManager {
 
   // One odometry message -> one command. The first valid odometry anchors the initial tracker on its pose
   // (start-up); a pending episode reset or an odometry jump re-anchors before the update.
-  ControlStep OnOdometry(const VehicleState& state);
+  ControlStep OnOdometry(const quad_core::VehicleState& state);
 
   // /sim/status: the episode id and its start time (EpisodeStatus.sim_time of the first status of an
   // episode). The first status seen only records the id. A different id aborts the B-spline goals ("episode
@@ -53,7 +53,7 @@ class TrackerManager {
   // Aborts all B-spline goals with `reason`, stops the line tracker, resets the controller's integral, makes
   // `state`'s position and yaw the reference (zero derivatives) and activates the initial tracker from it,
   // exactly as at start-up; then applies the deferred gotos/switches. `state` must be finite.
-  void ReAnchor(const VehicleState& state, const std::string& reason);
+  void ReAnchor(const quad_core::VehicleState& state, const std::string& reason);
 
   // Requests; "" on success, else the reason for refusing. `deferred` (optional) tells whether a goto or
   // switch was queued until the new episode's first odometry.
@@ -65,7 +65,7 @@ class TrackerManager {
   std::vector<GoalEvent> TakeEvents() { return bspline_.TakeEvents(); }
 
   bool have_odom() const { return have_odom_; }
-  const VehicleState& last_state() const { return last_state_; }
+  const quad_core::VehicleState& last_state() const { return last_state_; }
   const PositionReference& last_ref() const { return last_ref_; }
   // Weight-compensating, level, at the last reference's yaw: what the node holds while odometry is stale.
   const So3Command& safe_command() const { return safe_command_; }
@@ -97,7 +97,7 @@ class TrackerManager {
   Tracker* active_ = nullptr;
 
   bool have_odom_ = false;
-  VehicleState last_state_;
+  quad_core::VehicleState last_state_;
   PositionReference last_ref_;
   So3Command safe_command_;
   double anchor_stamp_s_ = 0.0;  // stamp of the odometry the trackers were last anchored on

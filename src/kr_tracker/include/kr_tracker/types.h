@@ -3,22 +3,9 @@
 
 #include <Eigen/Geometry>
 
+#include "quad_core/vehicle_state.h"
+
 namespace kr_tracker {
-
-// Odometry of the vehicle (nav_msgs/Odometry with the twist in the world frame, CONVENTIONS.md).
-struct VehicleState {
-  double t_s = 0.0;  // stamp of the odometry
-  Eigen::Vector3d p_world_body = Eigen::Vector3d::Zero();
-  Eigen::Vector3d v_world = Eigen::Vector3d::Zero();
-  Eigen::Quaterniond q_world_body = Eigen::Quaterniond::Identity();
-  Eigen::Vector3d w_body = Eigen::Vector3d::Zero();
-  // Measured acceleration, used only when has_accel (nav_msgs/Odometry carries none; see So3Controller).
-  bool has_accel = false;
-  Eigen::Vector3d a_world = Eigen::Vector3d::Zero();
-
-  bool AllFinite() const;
-  double Yaw() const;  // rotation about world z, in (-pi, pi]
-};
 
 // The reference a tracker produces each control period: kr_mav_msgs/PositionCommand's fields.
 struct PositionReference {
@@ -46,8 +33,5 @@ struct So3Command {
 
   bool AllFinite() const;
 };
-
-// Wraps an angle to (-pi, pi].
-double WrapAngle(double a_rad);
 
 }  // namespace kr_tracker

@@ -7,16 +7,16 @@
 // node.odom_timeout_s in ROS time) a watchdog keeps publishing the safe hover command (weight-compensating
 // thrust, level attitude, last yaw). The logic (trackers, controller, episode resets) is
 // kr_tracker::TrackerManager; this file converts messages and maps goal events onto the action's goal
-// handles.
+// handles; message conversion is src/ros/conversions.h. Both parameters are required (no defaults).
 #include <actionlib/server/action_server.h>
 #include <nav_msgs/Odometry.h>
+#include <quad_core/vehicle_params.h>
 #include <quad_msgs/EpisodeStatus.h>
 #include <quad_msgs/Goto.h>
 #include <quad_msgs/PositionCommand.h>
 #include <quad_msgs/SO3Command.h>
 #include <quad_msgs/SwitchTracker.h>
 #include <quad_msgs/TrackBsplineAction.h>
-#include <quad_sim/vehicle_params.h>
 #include <ros/ros.h>
 
 #include <algorithm>
@@ -24,6 +24,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "../ros/conversions.h"
 #include "kr_tracker/config.h"
 #include "kr_tracker/tracker_manager.h"
 
@@ -33,46 +34,12 @@ namespace {
 using TrackServer = actionlib::ActionServer<quad_msgs::TrackBsplineAction>;
 using GoalHandle = TrackServer::GoalHandle;
 
-VehicleState FromOdometry(const nav_msgs::Odometry& m) {
-  VehicleState s;
-  s.t_s = m.header.stamp.toSec();
-  const auto& p = m.pose.pose.position;
-  const auto& q = m.pose.pose.orientation;
-  s.p_world_body = Eigen::Vector3d(p.x, p.y, p.z);
-  s.q_world_body = Eigen::Quaterniond(q.w, q.x, q.y, q.z);
-  // CONVENTIONS.md: the twist of /odom is in the world frame.
-  s.v_world = Eigen::Vector3d(m.twist.twist.linear.x, m.twist.twist.linear.y, m.twist.twist.linear.z);
-  s.w_body = Eigen::Vector3d(m.twist.twist.angular.x, m.twist.twist.angular.y, m.twist.twist.angular.z);
-  return s;
-}
-
-void ToVector3(const Eigen::Vector3d& v, geometry_msgs::Vector3* m) {
-  m->x = v.x();
-  m->y = v.y();
-  m->z = v.z();
-}
-
-BsplineGoalSpec ToSpec(const quad_msgs::Bspline& b) {
-  BsplineGoalSpec s;
-  s.order = b.order;
-  s.traj_id = b.traj_id;
-  s.start_time_s = b.start_time.toSec();
-  s.knots = b.knots;
-  s.pos_pts.resize(static_cast<Eigen::Index>(b.pos_pts.size()), 3);
-  for (size_t i = 0; i < b.pos_pts.size(); ++i) {
-    s.pos_pts.row(static_cast<Eigen::Index>(i)) << b.pos_pts[i].x, b.pos_pts[i].y, b.pos_pts[i].z;
-  }
-  s.yaw_pts = b.yaw_pts;
-  s.yaw_dt_s = b.yaw_dt;
-  return s;
-}
-
 class TrackerNode {
  public:
   TrackerNode(ros::NodeHandle nh, ros::NodeHandle pnh)
       : nh_(nh),
         config_(LoadTrackerConfig(RequiredParam(pnh, "tracker_config"))),
-        vehicle_(quad_sim::LoadVehicleParams(RequiredParam(pnh, "vehicle_config"))),
+        vehicle_(quad_core::LoadVehicleParams(RequiredParam(pnh, "vehicle_config"))),
         manager_(config_, vehicle_.mass_kg, vehicle_.gravity_mps2, vehicle_.MaxThrustN()),
         server_(nh, "tracker/track_bspline", false) {
     so3_pub_ = nh_.advertise<quad_msgs::SO3Command>("so3_cmd", 10);
@@ -106,7 +73,7 @@ class TrackerNode {
   }
 
   void OnOdom(const nav_msgs::Odometry::ConstPtr& msg) {
-    const VehicleState state = FromOdometry(*msg);
+    const quad_core::VehicleState state = ros_conv::ToVehicleState(*msg);
     const bool first = !manager_.have_odom();
     if (state.AllFinite() && !first && state.t_s <= manager_.last_state().t_s) {
       ROS_WARN_THROTTLE(1.0, "kr_tracker: odometry stamp did not advance (%.4f after %.4f)", state.t_s,
@@ -173,41 +140,9 @@ class TrackerNode {
   }
 
   void Publish(const So3Command& c, const PositionReference& ref, const ros::Time& stamp) {
-    quad_msgs::SO3Command m;
-    m.header.stamp = stamp;
-    m.header.frame_id = "world";
-    ToVector3(c.force_world_N, &m.force);
-    m.orientation.w = c.q_world_des.w();
-    m.orientation.x = c.q_world_des.x();
-    m.orientation.y = c.q_world_des.y();
-    m.orientation.z = c.q_world_des.z();
-    ToVector3(c.w_body_des_radps, &m.angular_velocity);
-    for (int i = 0; i < 3; ++i) {
-      m.kR[i] = c.kR[i];
-      m.kOm[i] = c.kOm[i];
-    }
-    m.aux.current_yaw = manager_.last_state().Yaw();
-    m.aux.kf_correction = 0.0;
-    m.aux.enable_motors = c.enable_motors;
-    m.aux.use_external_yaw = false;
+    const quad_msgs::SO3Command m = ros_conv::ToSo3Command(c, stamp, manager_.last_state().Yaw());
     so3_pub_.publish(m);
-
-    quad_msgs::PositionCommand p;
-    p.header = m.header;
-    p.position.x = ref.p_world.x();
-    p.position.y = ref.p_world.y();
-    p.position.z = ref.p_world.z();
-    ToVector3(ref.v_world, &p.velocity);
-    ToVector3(ref.a_world, &p.acceleration);
-    ToVector3(ref.j_world, &p.jerk);
-    p.yaw = ref.yaw_rad;
-    p.yaw_dot = ref.yaw_rate_radps;
-    for (int i = 0; i < 3; ++i) {
-      p.kx[i] = config_.gains.kx[i];
-      p.kv[i] = config_.gains.kv[i];
-    }
-    p.use_msg_gains_flags = quad_msgs::PositionCommand::USE_MSG_GAINS_NONE;
-    pos_pub_.publish(p);
+    pos_pub_.publish(ros_conv::ToPositionCommand(ref, m.header, config_.gains));
   }
 
   bool OnSwitch(quad_msgs::SwitchTracker::Request& req, quad_msgs::SwitchTracker::Response& res) {
@@ -249,7 +184,8 @@ class TrackerNode {
   void OnGoal(GoalHandle gh) {
     const auto goal = gh.getGoal();
     const uint64_t id = next_goal_id_++;
-    const std::string why = manager_.AddGoal(id, ToSpec(goal->bspline), ros::Time::now().toSec());
+    const std::string why =
+        manager_.AddGoal(id, ros_conv::ToGoalSpec(goal->bspline), ros::Time::now().toSec());
     if (!why.empty()) {
       quad_msgs::TrackBsplineResult r;
       r.success = false;
@@ -312,7 +248,7 @@ class TrackerNode {
 
   ros::NodeHandle nh_;
   TrackerConfig config_;
-  quad_sim::VehicleParams vehicle_;
+  quad_core::VehicleParams vehicle_;
   TrackerManager manager_;
   TrackServer server_;
   std::map<uint64_t, GoalHandle> goals_;
@@ -331,8 +267,11 @@ class TrackerNode {
 
 int main(int argc, char** argv) {
   ros::init(argc, argv, "kr_tracker");
+  // The handles outlive the try block: when the last handle goes, roscpp shuts down and rosconsole with it,
+  // and a start-up error (a missing parameter) would be printed nowhere.
+  ros::NodeHandle nh, pnh("~");
   try {
-    kr_tracker::TrackerNode node(ros::NodeHandle(), ros::NodeHandle("~"));
+    kr_tracker::TrackerNode node(nh, pnh);
     ros::spin();
   } catch (const std::exception& e) {
     ROS_FATAL("kr_tracker: %s", e.what());

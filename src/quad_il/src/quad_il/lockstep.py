@@ -9,7 +9,7 @@ sim time in every run, whatever the machine's load. Without lockstep (a free-run
 just return the newest frame and acknowledge nothing.
 
 Start-up: the simulator starts stepping once every consumer's FrameAck publisher delivers to it and every
-topic a consumer has registered for (its frames, odometry, clock) is connected (quad_sim/lockstep_peers.h,
+topic a consumer has registered for (its frames, odometry, clock) is connected (quad_core/lockstep_gate.h,
 issue 30), so a consumer normally gets the episode's first frame. The node still takes no decision in the
 first STARTUP_ACK_S of sim time after the simulator's first status and acknowledges that stretch blindly
 (cumulative acknowledgements) if no frame arrives, e.g. beside a simulator that was already stepping; the
@@ -35,6 +35,7 @@ from nav_msgs.msg import Odometry
 from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import String
 
+from quad_il.frame_pairing import newest_at_or_before, period_arrived
 from quad_msgs.msg import EpisodeStatus, FrameAck, SO3Command
 from quad_msgs.srv import Goto
 
@@ -81,11 +82,11 @@ class FrameGate:
         # Only a consumer publishes acknowledgements: the simulator starts once it has as many FrameAck
         # publishers as named consumers, so a publisher of a node that is none would let it start too early.
         self.ack_pub = (
-            rospy.Publisher("/sim/frame_ack", FrameAck, queue_size=10, tcp_nodelay=True) if lockstep else None
+            rospy.Publisher("sim/frame_ack", FrameAck, queue_size=10, tcp_nodelay=True) if lockstep else None
         )
-        rospy.Subscriber("/sim/status", EpisodeStatus, self._on_status, queue_size=10)
+        rospy.Subscriber("sim/status", EpisodeStatus, self._on_status, queue_size=10)
         self._sub = rospy.Subscriber(
-            "/camera/depth/camera_info", CameraInfo, self._on_frame, queue_size=100, tcp_nodelay=True
+            "camera/depth/camera_info", CameraInfo, self._on_frame, queue_size=100, tcp_nodelay=True
         )
 
     def _on_status(self, msg: EpisodeStatus) -> None:
@@ -188,7 +189,7 @@ class OdometryHistory:
         self.cv = threading.Condition()
         self._t: list[float] = []
         self._v: list[tuple[tuple[float, float, float], float]] = []
-        rospy.Subscriber("/odom", Odometry, self._on_odom, queue_size=400, tcp_nodelay=True)
+        rospy.Subscriber("odom", Odometry, self._on_odom, queue_size=400, tcp_nodelay=True)
 
     def _on_odom(self, msg: Odometry) -> None:
         p, v = msg.pose.pose.position, msg.twist.twist.linear
@@ -207,16 +208,14 @@ class OdometryHistory:
     def at(self, t: float) -> tuple[tuple[float, float, float], float]:
         """(position, speed) of the newest odometry stamped at or before t, waiting until the one within an
         odometry period of t has arrived (in lockstep it was published before the frame at t)."""
-        eps = 1e-6
         wait_until(
             self.cv,
-            lambda: bool(self._t) and self._t[-1] > t - self.odom_period_s + eps,
+            lambda: bool(self._t) and period_arrived(self._t[-1], t, self.odom_period_s),
             f"odometry at t={t:.3f}",
             self.wall_wait_s,
         )
         with self.cv:
-            i = bisect.bisect_right(self._t, t + eps) - 1
-            return self._v[max(i, 0)]
+            return self._v[max(newest_at_or_before(self._t, t), 0)]
 
     def positions(self, t0: float, t1: float) -> list[tuple[float, float, float, float]]:
         """(stamp, x, y, z) of every message kept stamped in [t0, t1]."""
@@ -242,7 +241,7 @@ class TrackerGoto:
         self.wall_wait_s = wall_wait_s
         self.cv = threading.Condition()
         self._cmd_t = 0.0  # stamp of the tracker's newest command
-        rospy.Subscriber("/so3_cmd", SO3Command, self._on_cmd, queue_size=100, tcp_nodelay=True)
+        rospy.Subscriber("so3_cmd", SO3Command, self._on_cmd, queue_size=100, tcp_nodelay=True)
 
     def _on_cmd(self, msg: SO3Command) -> None:
         with self.cv:
@@ -252,14 +251,13 @@ class TrackerGoto:
     def __call__(self, position: tuple[float, float, float], yaw: float, at_s: float | None = None) -> str:
         """'' if the tracker took the goto, else its reason. at_s: the held frame's stamp (lockstep)."""
         if at_s is not None and self.lockstep:
-            eps = 1e-6
             wait_until(
                 self.cv,
-                lambda: self._cmd_t > at_s - self.odom_period_s + eps,
+                lambda: period_arrived(self._cmd_t, at_s, self.odom_period_s),
                 f"tracker command of the control period at t={at_s:.3f}",
                 self.wall_wait_s,
             )
-        goto = rospy.ServiceProxy("/tracker/goto", Goto)
+        goto = rospy.ServiceProxy("tracker/goto", Goto)
         r = goto(position=Point(*position), yaw=yaw, max_vel_mps=0.0, max_acc_mps2=0.0)
         return "" if r.success else r.message
 
@@ -277,10 +275,10 @@ class ControllerGoal:
         self.cv = threading.Condition()
         self._ack_s = 0.0
         self._answers: list[str] = []
-        self.goal_pub = rospy.Publisher("/planner/goal", PoseStamped, queue_size=1, latch=True)
+        self.goal_pub = rospy.Publisher("planner/goal", PoseStamped, queue_size=1, latch=True)
         if wait:  # (a subscriber would count as connected for the nodes that wait for one)
             rospy.Subscriber(status_topic, String, self._on_answer, queue_size=100)
-            rospy.Subscriber("/sim/frame_ack", FrameAck, self._on_ack, queue_size=200, tcp_nodelay=True)
+            rospy.Subscriber("sim/frame_ack", FrameAck, self._on_ack, queue_size=200, tcp_nodelay=True)
 
     def _on_answer(self, msg: String) -> None:
         with self.cv:

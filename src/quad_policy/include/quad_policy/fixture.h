@@ -1,7 +1,7 @@
 // Recorded decision inputs on disk: a directory of .npy arrays, written by Python
 // (quad_il/inference/fixture.py) or C++ (the benchmark's frame generator) and read by both, so the parity
-// test and the benchmark feed exactly the same frames to the C++ and the Python pipelines. Layout (N frames
-// of H x W; docs/inference.md):
+// test and the benchmark feed exactly the same frames to the C++ and the Python forward passes. Layout (N
+// frames of H x W; docs/inference.md):
 //   depth_m.npy (N, H, W) <f4 | stamp_s.npy (N,) <f8 | p_world_body.npy, v_world.npy, goal_world.npy (N, 3)
 //   <f8 | q_world_body.npy (N, 4) <f8 xyzw | camera_k.npy (4,) <f8 fx, fy, cx, cy | T_body_camera.npy (4, 4)
 //   <f8

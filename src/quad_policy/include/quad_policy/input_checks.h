@@ -1,7 +1,7 @@
 // Checks of the inputs a policy node takes from ROS messages (issue 30: bad input is refused with a reason,
 // never decided on). Each returns "" when the input is usable, else the reason the frame is refused, which
-// the node publishes on policy/decision (status bad_input). The Python node (quad_il.inference.input_checks)
-// returns the same texts.
+// the node publishes on policy/decision (status bad_input). The Python node calls these through the bindings
+// (quad_il.inference.core), so both nodes publish the same texts.
 #pragma once
 
 #include <cstddef>

@@ -1,8 +1,8 @@
 // The exported policy's preprocessing and output decoding, implemented in C++ from the parameters stored in
 // the file (PolicyMeta). The reference is the training code,
-// src/quad_il/src/quad_il/learning/preprocessing.py (DepthPreprocessor, StateEncoder, OutputCodec), which the
-// Python node runs; tests/python/test_inference_parity.py requires this code to give the same depth input bit
-// for bit and the same control points within 1e-4.
+// src/quad_il/src/quad_il/learning/preprocessing.py (DepthPreprocessor, StateEncoder, OutputCodec), whose
+// preprocessing the Python node runs; tests/python/test_inference_parity.py requires this code to give the
+// same depth input bit for bit, the same state vector and the same control points within 1e-4.
 #pragma once
 
 #include <Eigen/Core>
@@ -12,35 +12,17 @@
 #include <cstddef>
 #include <vector>
 
+#include <quad_core/depth_image.h>
+#include <quad_core/vehicle_state.h>
+
 #include "quad_policy/policy_meta.h"
 
 namespace quad_policy {
 
-// A depth image in metres (REP 118: +inf no return, -inf too near, NaN invalid), row-major, not owned.
-struct DepthImageView {
-  int width = 0;
-  int height = 0;
-  std::size_t row_stride = 0;  // floats between the starts of two rows (>= width)
-  const float* data = nullptr;
-  float at(int row, int col) const { return data[static_cast<std::size_t>(row) * row_stride + col]; }
-};
-
-// An owning depth image (tests, tools).
-struct DepthImage {
-  int width = 0;
-  int height = 0;
-  std::vector<float> data_m;  // row-major, width * height
-  DepthImageView view() const {
-    return DepthImageView{width, height, static_cast<std::size_t>(width), data_m.data()};
-  }
-};
-
-// The vehicle's state as the policy uses it: odometry in the world frame.
-struct VehicleState {
-  Eigen::Vector3d p_world_body = Eigen::Vector3d::Zero();
-  Eigen::Vector3d v_world = Eigen::Vector3d::Zero();
-  Eigen::Quaterniond q_world_body = Eigen::Quaterniond::Identity();
-};
+// The shared vocabulary (quad_core): depth images in metres (REP 118) and the vehicle's odometry.
+using quad_core::DepthImage;
+using quad_core::DepthImageView;
+using quad_core::VehicleState;
 
 using StateVector = std::array<float, kStateDim>;
 // World-frame control points, one per row.

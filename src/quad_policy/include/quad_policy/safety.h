@@ -1,8 +1,8 @@
 // The safety layer between the network and the tracker (issue 8): a proposed trajectory is refused when its
 // control points are not finite, when the control points of its derivatives exceed the velocity or
 // acceleration limit (convex-hull bounds), when it starts far from the vehicle, or when it enters space that
-// the latest depth frame shows occupied. The same checks, in the same order, are implemented in Python
-// (quad_il/inference/safety.py); docs/inference.md describes them.
+// the depth frame shows occupied. Python uses these through the bindings (quad_policy_py); docs/inference.md
+// describes them.
 #pragma once
 
 #include <Eigen/Geometry>
@@ -11,6 +11,8 @@
 #include <limits>
 #include <string>
 #include <vector>
+
+#include <quad_core/camera.h>
 
 #include "quad_policy/preprocessing.h"
 #include "quad_policy/trajectory.h"
@@ -39,51 +41,15 @@ struct SafetyConfig {
   double sample_dt_s = 0.05;       // spacing of the samples tested against the depth image
   double check_horizon_s = 0.0;    // samples up to this time; 0 = the whole trajectory
   int collision_min_pixels = 1;    // occupied pixels needed to call a sample colliding
-  // Depth memory (docs/inference.md, "Depth memory"): samples the latest frame does not show are judged by
-  // the newest of up to memory_frames earlier decision frames that shows them (0: the latest frame only),
-  // kept at least memory_spacing_s apart.
-  int memory_frames = 0;
-  double memory_spacing_s = 0.2;
 };
 // Throws std::invalid_argument naming the bad field.
 void ValidateSafetyConfig(const SafetyConfig& cfg);
 
-// Pinhole camera of the depth frame (CameraInfo K; pixel centres at integer coordinates) and its pose in the
-// world at the frame's time.
+// The depth frame's camera: its intrinsics (CameraInfo K; pixel centres at integer coordinates) and its pose
+// in the world at the frame's time.
 struct CameraModel {
-  int width = 0;
-  int height = 0;
-  double fx = 0.0;
-  double fy = 0.0;
-  double cx = 0.0;
-  double cy = 0.0;
+  quad_core::CameraIntrinsics intrinsics;
   Eigen::Isometry3d T_world_camera = Eigen::Isometry3d::Identity();  // camera optical frame (z forward)
-};
-
-// An earlier depth frame the safety layer remembers: its stamp, a copy of its image and its camera.
-struct DepthFrame {
-  double stamp_s = 0.0;
-  DepthImage image;
-  CameraModel camera;
-};
-
-// The remembered frames (SafetyConfig memory_frames, memory_spacing_s): after each decision its frame is kept
-// when the newest kept one is at least memory_spacing_s older; at most memory_frames are kept, the oldest
-// dropped. A frame older than the newest kept (time went back: a new episode, a replayed bag) empties it
-// first. The Python DepthMemory.
-class DepthMemory {
- public:
-  DepthMemory() = default;
-  DepthMemory(int max_frames, double spacing_s);  // throws std::invalid_argument on bad values
-  void Clear() { frames_.clear(); }
-  // Keeps a copy of the frame if it is due; whether it was kept.
-  bool Add(double stamp_s, const DepthImageView& depth, const CameraModel& camera);
-  const std::vector<DepthFrame>& frames() const { return frames_; }  // newest first
-
- private:
-  int max_frames_ = 0;
-  double spacing_s_ = 0.0;
-  std::vector<DepthFrame> frames_;
 };
 
 struct SafetyResult {
@@ -101,7 +67,8 @@ struct SafetyResult {
 // as d = 0. Samples whose sphere contains the camera centre (the vehicle's own position) and samples that no
 // ray of the image meets are not judged. Only the pixels of the sphere's bounding rectangle in the image are
 // tested (exactly: the rectangle comes from the sphere's tangents in the x-z and y-z planes, widened by one
-// pixel).
+// pixel). Samples beside or behind the camera are not judged: earlier frames are not remembered (a depth
+// memory was measured to give nothing, docs/notebook/2026-12_closed_loop_issue8.md, "Depth memory").
 struct DepthCollision {
   bool collides = false;
   int sample_index = -1;
@@ -110,15 +77,9 @@ struct DepthCollision {
   int v = -1;
   double measured_depth_m = 0.0;
   double sphere_depth_m = 0.0;  // t_far of that pixel
-  int frame = 0;                // the frame that judged it: 0 the latest, k >= 1 the k-th remembered
-  double frame_stamp_s = std::numeric_limits<double>::quiet_NaN();  // that remembered frame's stamp
 };
-// With a memory (newest first), a sample whose sphere does not hold the latest camera centre is judged by
-// the latest frame when its centre is in that frame's view, else by the newest remembered frame whose view
-// holds it, else by the latest frame (which judges the part of the sphere it sees).
 DepthCollision FindDepthCollision(const std::vector<Eigen::Vector3d>& samples_world, double radius_m,
-                                  int min_pixels, const DepthImageView& depth, const CameraModel& camera,
-                                  const std::vector<DepthFrame>& memory = {});
+                                  int min_pixels, const DepthImageView& depth, const CameraModel& camera);
 
 // Sample times from_s + j * sample_dt_s (j = 0, 1, ...) up to the check horizon after from_s (or the
 // trajectory's end), and that last time itself. from_s > 0 judges the rest of a trajectory (RestIsClear).
@@ -128,31 +89,24 @@ std::vector<double> SafetySampleTimes(const UniformBspline& traj, const SafetyCo
 // All checks in order: non-finite control points; velocity; acceleration; start far from the vehicle;
 // collision in the depth image (skipped when depth is null). The first failure is the verdict.
 SafetyResult CheckTrajectory(const UniformBspline& traj, const Eigen::Vector3d& p_world_vehicle,
-                             const DepthImageView* depth, const CameraModel& camera, const SafetyConfig& cfg,
-                             const std::vector<DepthFrame>& memory = {});
+                             const DepthImageView* depth, const CameraModel& camera, const SafetyConfig& cfg);
 
 // Whether the trajectory stays where the depth frame looked: every sample up to the check horizon (the times
 // of SafetySampleTimes) whose sphere does not hold the camera centre has its centre in front of the camera
 // and projecting inside the image. The recovery's plans must pass this besides CheckTrajectory: a plan
-// turned away from the goal may leave the field of view, where the depth check cannot judge it. With a
-// memory, a sample a remembered frame shows counts as in view (that frame judges it).
+// turned away from the goal may leave the field of view, where the depth check cannot judge it.
 // from_s: judge the samples from that trajectory time on (SafetySampleTimes).
 bool TrajectoryInView(const UniformBspline& traj, const CameraModel& camera, const SafetyConfig& cfg,
-                      const std::vector<DepthFrame>& memory = {}, double from_s = 0.0);
+                      double from_s = 0.0);
 
 // Whether the rest of a trajectory sent before (from the time now_s on) may still be flown: at least
 // min_rest_s of it is left, the vehicle is within max_start_error_m of where it should be now, and from now
-// up to the check horizon no sample enters what the depth frames show occupied (FindDepthCollision) or leaves
-// their view (TrajectoryInView): the test a recovery plan passes. Its velocity and acceleration were judged
-// when it was sent. The Python twin is quad_il.inference.safety.rest_is_clear.
+// up to the check horizon no sample enters what the depth frame shows occupied (FindDepthCollision) or leaves
+// its view (TrajectoryInView): the test a recovery plan passes. Its velocity and acceleration were judged
+// when it was sent.
 bool RestIsClear(const UniformBspline& traj, double now_s, double min_rest_s,
                  const Eigen::Vector3d& p_world_vehicle, const DepthImageView& depth,
-                 const CameraModel& camera, const SafetyConfig& cfg,
-                 const std::vector<DepthFrame>& memory = {});
-
-// The smallest depth (along the optical axis, m) among the pixels that show a surface: -inf (nearer than the
-// camera's minimum range) counts as 0, NaN and +inf show none. +inf when no pixel shows a surface.
-double NearestDepth(const DepthImageView& depth);
+                 const CameraModel& camera, const SafetyConfig& cfg);
 
 // Counts of verdicts (index: SafetyVerdict value).
 struct VerdictCounts {

@@ -41,6 +41,10 @@ class TorchPolicy {
   // EncodeState is then the network's input. Otherwise `forward_prepared(depth_x, p, v, q, goal)` is used and
   // the file encodes the state itself (exports before that method existed).
   bool has_forward_net() const;
+  // The first forward passes of a TorchScript module are slower (profiling executor): runs `passes` of them
+  // on a neutral input before flying. Throws std::runtime_error naming the file when the forward pass fails
+  // (a file whose methods exist but do not take a policy's inputs, issue 30).
+  void WarmUp(int passes = 3) const;
 
   // The network's flat output (training representation) from the preprocessed depth (input_height x
   // input_width) and the state. One sample, InferenceMode. Throws std::invalid_argument on wrong sizes.

@@ -1,5 +1,6 @@
 // The trajectories the policy node sends: uniform cubic B-splines in the world frame, as quad_msgs/Bspline
-// carries them (knots (i - 3) dt for i = 0 .. K + 3, so knots[3] = 0 is flown at start_time).
+// carries them (knots (i - 3) dt for i = 0 .. K + 3, so knots[3] = 0 is flown at start_time). Evaluated in
+// matrix form, not through quad_core::NonUniformBspline: see trajectory.cpp.
 #pragma once
 
 #include <Eigen/Core>
@@ -14,10 +15,8 @@ namespace quad_policy {
 struct UniformBspline {
   double start_time_s = 0.0;  // when knots[order] = 0 is flown (the depth frame's stamp)
   double knot_dt_s = 0.0;
-  CtrlPoints ctrl_world;  // K x 3, K >= 4
-  // Empty: no yaw (the tracker turns the vehicle along its direction of travel). Else K yaw control points
-  // (rad, not wrapped) on the same knots: the tracker flies this heading.
-  std::vector<double> yaw_ctrl;
+  // K x 3, K >= 4. No yaw: the tracker turns the vehicle along its direction of travel.
+  CtrlPoints ctrl_world;
 
   int num_ctrl_pts() const { return static_cast<int>(ctrl_world.rows()); }
   double duration_s() const { return (num_ctrl_pts() - 3) * knot_dt_s; }
@@ -45,29 +44,13 @@ UniformBspline PolicyTrajectory(const CtrlPoints& ctrl_world, const PolicyMeta& 
 UniformBspline BrakingTrajectory(const Eigen::Vector3d& p0_world, const Eigen::Vector3d& v0_world,
                                  double max_decel_mps2, double min_duration_s, double start_time_s);
 
-// The stopping trajectory of turning in place (recovery.turn_after_stops): BrakingTrajectory's motion plus a
-// back-off b (world frame, e.g. away from a surface ahead) blended in with s(t/T), s(u) = 3u^2 - 2u^3 (at
-// rest at both ends), and the heading yaw(t) = yaw0_rad + rate_radps t. T = max(2 |v0| / max_decel_mps2,
-// min_duration_s, sqrt(6 |b| / max_decel_mps2)): the back-off's own acceleration, largest at the ends,
-// 6 |b| / T^2, stays within max_decel_mps2. Still one cubic (K = 4). b = 0 gives BrakingTrajectory with a
-// heading. Throws std::invalid_argument on non-finite input or non-positive limits.
-UniformBspline TurningStop(const Eigen::Vector3d& p0_world, const Eigen::Vector3d& v0_world,
-                           const Eigen::Vector3d& backoff_world, double yaw0_rad, double rate_radps,
-                           double max_decel_mps2, double min_duration_s, double start_time_s);
-
 // The final approach (recovery.final_approach_m): from p0 with velocity v0 to rest at the goal, p(t) = p0 +
 // v0 T / 3 (1 - (1 - u)^3) + b (3 u^2 - 2 u^3), u = t / T, b = goal - p0 - v0 T / 3. Its acceleration is
 // linear in u, -2 v0 (1 - u) / T + b (6 - 12 u) / T^2, so largest at an end; T is the first of min_duration_s
 // + k * 0.02 s (k = 0 .. 2000) at which both ends are within max_acc_mps2. nullopt when no such T exists. One
-// cubic (K = 4). Throws std::invalid_argument on non-finite input or non-positive limits. Python twin:
-// final_approach.
+// cubic (K = 4). Throws std::invalid_argument on non-finite input or non-positive limits.
 std::optional<UniformBspline> FinalApproach(const Eigen::Vector3d& p0_world, const Eigen::Vector3d& v0_world,
                                             const Eigen::Vector3d& goal_world, double max_acc_mps2,
                                             double min_duration_s, double start_time_s);
-
-// Adds a heading that turns at a constant rate: yaw(t) = yaw0_rad + rate_radps t over the whole spline. A
-// uniform B-spline reproduces a linear function exactly with its control points at the Greville abscissae
-// (i - 1) knot_dt_s. Throws std::invalid_argument on non-finite values or a spline without knots.
-void SetConstantYawRate(UniformBspline* s, double yaw0_rad, double rate_radps);
 
 }  // namespace quad_policy

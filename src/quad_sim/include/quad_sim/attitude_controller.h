@@ -10,9 +10,9 @@
 // and clamped to the motor limits.
 #pragma once
 
+#include "quad_core/vehicle_params.h"
 #include "quad_sim/commands.h"
 #include "quad_sim/dynamics.h"
-#include "quad_sim/vehicle_params.h"
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
@@ -37,15 +37,15 @@ struct AttitudeTarget {
 
 class AttitudeController {
  public:
-  explicit AttitudeController(const VehicleParams& vehicle);
+  explicit AttitudeController(const quad_core::VehicleParams& vehicle);
 
   // Desired collective thrust (N) and body moment (N m) for the target at the current state.
-  Eigen::Vector4d ThrustAndMoment(const AttitudeTarget& target, const VehicleState& state) const;
+  Eigen::Vector4d ThrustAndMoment(const AttitudeTarget& target, const DynamicsState& state) const;
   // Rotor speed commands (rad/s): zeros when motors are disabled, else within [min, max] speed.
-  Eigen::Vector4d MotorCommands(const AttitudeTarget& target, const VehicleState& state) const;
+  Eigen::Vector4d MotorCommands(const AttitudeTarget& target, const DynamicsState& state) const;
 
  private:
-  VehicleParams vehicle_;
+  quad_core::VehicleParams vehicle_;
   Eigen::Matrix4d mixer_inv_;
 };
 

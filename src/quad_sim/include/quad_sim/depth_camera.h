@@ -1,6 +1,8 @@
 // Pinhole depth camera: exact analytic ray/box distances (no voxelisation), REP 118 conventions.
 #pragma once
 
+#include "quad_core/camera.h"
+#include "quad_core/depth_image.h"
 #include "quad_sim/world_index.h"
 
 #include <Eigen/Core>
@@ -12,17 +14,8 @@
 
 namespace quad_sim {
 
-struct CameraIntrinsics {
-  int width = 320;
-  int height = 240;
-  double fx = 193.6;
-  double fy = 193.6;
-  double cx = 159.5;
-  double cy = 119.5;
-};
-
 struct DepthCameraConfig {
-  CameraIntrinsics intrinsics;
+  quad_core::CameraIntrinsics intrinsics{320, 240, 193.6, 193.6, 159.5, 119.5};
   double rate_hz = 30.0;
   double min_depth_m = 0.1;   // closer returns are -Inf (REP 118)
   double max_depth_m = 10.0;  // farther returns and no return are +Inf
@@ -36,16 +29,8 @@ struct DepthCameraConfig {
 
   // Intrinsics with the same field of view as Fast-Planner's simulated camera (640 x 480, fx = fy = 387.2),
   // scaled to width x height, principal point at the image centre.
-  static CameraIntrinsics FastPlannerFov(int width, int height);
+  static quad_core::CameraIntrinsics FastPlannerFov(int width, int height);
   void Validate() const;
-};
-
-// Depth in metres along the optical axis (not along the ray), row-major, float32 as sensor_msgs 32FC1.
-struct DepthImage {
-  int width = 0;
-  int height = 0;
-  std::vector<float> depth_m;
-  float at(int u, int v) const { return depth_m[static_cast<size_t>(v) * width + u]; }
 };
 
 // The optical-frame rotation for a camera mounted with roll/pitch/yaw (body FLU) relative to looking forward.
@@ -56,10 +41,11 @@ class DepthRenderer {
   explicit DepthRenderer(const DepthCameraConfig& config);
 
   // Renders from the camera pose q_world_camera (optical frame) at p_world_camera.
-  DepthImage Render(const WorldIndex& index, const Eigen::Vector3d& p_world_camera,
-                    const Eigen::Quaterniond& q_world_camera) const;
+  // Depth along the optical axis (not along the ray).
+  quad_core::DepthImage Render(const WorldIndex& index, const Eigen::Vector3d& p_world_camera,
+                               const Eigen::Quaterniond& q_world_camera) const;
   // Adds the configured Gaussian noise in place (sequentially, so it is deterministic for a seeded rng).
-  void AddNoise(DepthImage* image, std::mt19937_64* rng) const;
+  void AddNoise(quad_core::DepthImage* image, std::mt19937_64* rng) const;
 
   const DepthCameraConfig& config() const { return config_; }
 

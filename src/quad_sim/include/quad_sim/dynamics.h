@@ -6,7 +6,8 @@
 // and a unit quaternion over 10^6 steps.
 #pragma once
 
-#include "quad_sim/vehicle_params.h"
+#include "quad_core/vehicle_params.h"
+#include "quad_core/vehicle_state.h"
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
@@ -15,7 +16,7 @@
 
 namespace quad_sim {
 
-struct VehicleState {
+struct DynamicsState {
   Eigen::Vector3d p_world_body = Eigen::Vector3d::Zero();  // centre of mass in the world frame (m)
   Eigen::Vector3d v_world = Eigen::Vector3d::Zero();  // velocity of the centre of mass, world frame (m/s)
   Eigen::Quaterniond q_world_body = Eigen::Quaterniond::Identity();
@@ -23,6 +24,8 @@ struct VehicleState {
   Eigen::Vector4d motor_speeds_radps = Eigen::Vector4d::Zero();
 
   bool AllFinite() const;
+  // The odometry of this state at sim time t_s (the motor speeds are internal to the simulator).
+  quad_core::VehicleState Odometry(double t_s) const;
 };
 
 // Spring-damper contact of the collision box's corners with the ground plane z = 0, with regularised Coulomb
@@ -43,21 +46,21 @@ struct Wrench {
 
 class QuadrotorDynamics {
  public:
-  QuadrotorDynamics(const VehicleParams& vehicle, const GroundContactParams& ground);
+  QuadrotorDynamics(const quad_core::VehicleParams& vehicle, const GroundContactParams& ground);
 
   // One RK4 step of length dt_s with the motor speed commands held constant over the step. Commands are
   // clamped to [0, max_speed] (0 means motors off; the attitude controller applies the idle limit when
   // armed).
-  VehicleState Step(const VehicleState& state, const Eigen::Vector4d& motor_cmd_radps, double dt_s) const;
+  DynamicsState Step(const DynamicsState& state, const Eigen::Vector4d& motor_cmd_radps, double dt_s) const;
 
   // Rotor thrust and moments (body frame) for given rotor speeds.
-  Wrench RotorWrench(const VehicleState& state) const;
+  Wrench RotorWrench(const DynamicsState& state) const;
   // Contact wrench of the ground plane on the collision box's corners.
-  Wrench GroundWrench(const VehicleState& state) const;
+  Wrench GroundWrench(const DynamicsState& state) const;
   // Lowest point of the collision box (world z).
-  double LowestPointZ(const VehicleState& state) const;
+  double LowestPointZ(const DynamicsState& state) const;
 
-  const VehicleParams& vehicle() const { return vehicle_; }
+  const quad_core::VehicleParams& vehicle() const { return vehicle_; }
 
  private:
   struct Derivative {
@@ -67,10 +70,10 @@ class QuadrotorDynamics {
     Eigen::Vector3d w_dot;
     Eigen::Vector4d motor_dot;
   };
-  Derivative Evaluate(const VehicleState& s, const Eigen::Vector4d& motor_cmd_radps) const;
-  static VehicleState Advance(const VehicleState& s, const Derivative& d, double h);
+  Derivative Evaluate(const DynamicsState& s, const Eigen::Vector4d& motor_cmd_radps) const;
+  static DynamicsState Advance(const DynamicsState& s, const Derivative& d, double h);
 
-  VehicleParams vehicle_;
+  quad_core::VehicleParams vehicle_;
   GroundContactParams ground_;
   Eigen::Matrix4d mixer_;
   Eigen::Matrix3d inertia_inv_;

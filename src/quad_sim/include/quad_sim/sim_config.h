@@ -3,9 +3,10 @@
 // controller.
 #pragma once
 
+#include "quad_core/lockstep_gate.h"
+#include "quad_core/vehicle_params.h"
 #include "quad_sim/depth_camera.h"
 #include "quad_sim/dynamics.h"
-#include "quad_sim/vehicle_params.h"
 #include "quad_sim/voxel_map.h"
 #include "quad_sim/world.h"
 
@@ -76,11 +77,20 @@ struct LockstepConfig {
   std::vector<std::string> depth_consumers;  // FrameAck.consumer names waited for after every depth frame
   bool wait_for_command = false;             // wait for the command stamped with each odometry stamp
   double timeout_s = 2.0;                    // wall-clock time per wait; timeouts are counted and logged
+
+  // The lockstep gate's configuration (quad_core/lockstep_gate.h).
+  quad_core::LockstepGateConfig Gate() const {
+    quad_core::LockstepGateConfig g;
+    g.depth_consumers = depth_consumers;
+    g.wait_for_command = wait_for_command;
+    g.timeout_s = timeout_s;
+    return g;
+  }
 };
 
 struct SimConfig {
   std::string vehicle_file;  // resolved path of the vehicle YAML
-  VehicleParams vehicle;
+  quad_core::VehicleParams vehicle;
   double physics_dt_s = 0.001;
   double odometry_rate_hz = 200.0;
   GroundContactParams ground_contact;
@@ -108,7 +118,7 @@ struct SimConfig {
 };
 
 // Loads config/sim.yaml (and the vehicle file it names, relative to its own directory). Throws
-// quad_common::ConfigError naming the file and key for missing, unknown or out-of-range keys.
+// quad_core::ConfigError naming the file and key for missing, unknown or out-of-range keys.
 SimConfig LoadSimConfig(const std::string& yaml_path);
 
 }  // namespace quad_sim

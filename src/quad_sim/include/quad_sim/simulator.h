@@ -102,7 +102,7 @@ class Simulator {
   bool OdometryDue() const;
   bool DepthDue() const;
 
-  const VehicleState& state() const { return state_; }
+  const DynamicsState& state() const { return state_; }
   // Rotor speed commands applied during the last step.
   const Eigen::Vector4d& motor_commands_radps() const { return motor_cmd_; }
   bool command_stale() const { return command_stale_; }
@@ -110,8 +110,8 @@ class Simulator {
   int num_rejected_commands() const { return num_rejected_commands_; }
 
   // Depth image from the current pose (plus the optional noise).
-  DepthImage RenderDepth();
-  const CameraIntrinsics& camera_intrinsics() const { return config_.camera.intrinsics; }
+  quad_core::DepthImage RenderDepth();
+  const quad_core::CameraIntrinsics& camera_intrinsics() const { return config_.camera.intrinsics; }
   // Camera optical frame in the world at the current state.
   void CameraPoseWorld(Eigen::Vector3d* p_world_camera, Eigen::Quaterniond* q_world_camera) const;
 
@@ -140,6 +140,13 @@ class Simulator {
   // Casts a ray straight down from the vehicle to the ground plane and returns the hit's z in the spawn
   // frame.
   double GroundHeightInSpawnFrame() const;
+  // The set_z_offset calibration (thesis section 3.3): the vertical gap between the engine's spawn frame and
+  // the world frame, measured from the engine's own ground query.
+  double MeasureZOffset() const { return -GroundHeightInSpawnFrame() / config_.spawn_frame.units_per_m; }
+  // What the simulator publishes as odometry at sim time t_s: the dynamics state, with the position read
+  // through the engine's spawn frame and mapped to `world` with the measured z offset (as a ROS bridge of an
+  // engine does), so the calibration is exercised on every message.
+  quad_core::VehicleState Odometry(double z_offset_m, double t_s) const;
 
  private:
   AttitudeTarget StaleTarget() const;
@@ -156,7 +163,7 @@ class Simulator {
   SpawnFrame spawn_frame_;
   Eigen::Vector3d goal_world_ = Eigen::Vector3d::Zero();
 
-  VehicleState state_;
+  DynamicsState state_;
   AttitudeTarget target_;
   Eigen::Vector4d motor_cmd_ = Eigen::Vector4d::Zero();
   uint64_t step_count_ = 0;

@@ -10,7 +10,7 @@
 #include <string>
 #include <vector>
 
-namespace quad_common {
+namespace quad_core {
 class StrictYaml;
 }
 
@@ -66,7 +66,7 @@ struct WorldGenConfig {
 World GenerateWorld(const WorldGenConfig& config, uint64_t seed);
 
 // Reads the generator keys (all at the top level of `y`).
-WorldGenConfig ReadWorldGenConfig(quad_common::StrictYaml* y);
+WorldGenConfig ReadWorldGenConfig(quad_core::StrictYaml* y);
 
 // World YAML file: `format: quad_sim_world`, `version: 1`, seed, bounds and one entry per box
 // (center_m, q_xyzw, size_m), numbers written with 17 significant digits so that a round trip is exact.

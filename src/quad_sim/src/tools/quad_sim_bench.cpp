@@ -56,8 +56,8 @@ double Seconds(Clock::duration d) { return std::chrono::duration<double>(d).coun
 // at 1.5 m so that the depth camera sees a changing scene (the benchmark does not need the real tracker).
 quad_sim::So3Command Follow(const quad_sim::Simulator& sim, const Eigen::Vector3d& p_ref,
                             const Eigen::Vector3d& v_ref) {
-  const quad_sim::VehicleParams& p = sim.config().vehicle;
-  const quad_sim::VehicleState& s = sim.state();
+  const quad_core::VehicleParams& p = sim.config().vehicle;
+  const quad_sim::DynamicsState& s = sim.state();
   const Eigen::Vector3d a = 4.0 * (p_ref - s.p_world_body) + 3.0 * (v_ref - s.v_world);
   quad_sim::So3Command c;
   c.force_world_N = p.mass_kg * (a + Eigen::Vector3d(0, 0, p.gravity_mps2));
@@ -97,7 +97,7 @@ int main(int argc, char** argv) {
       const Eigen::Quaterniond q =
           quad_sim::QuatFromRpy(0, 0, 0.3 * std::sin(0.1 * i)) * cfg.camera.q_body_camera;
       const auto t0 = Clock::now();
-      const quad_sim::DepthImage img = renderer.Render(index, p, q);
+      const quad_core::DepthImage img = renderer.Render(index, p, q);
       total_s += Seconds(Clock::now() - t0);
       checksum +=
           std::isfinite(img.depth_m[img.depth_m.size() / 2]) ? img.depth_m[img.depth_m.size() / 2] : 0.0;
@@ -120,7 +120,7 @@ int main(int argc, char** argv) {
         sim.SetSo3Command(Follow(sim, start + s * dir, dir * speed_mps));
       }
       if (sim.DepthDue()) {
-        const quad_sim::DepthImage img = sim.RenderDepth();
+        const quad_core::DepthImage img = sim.RenderDepth();
         ++depth_frames;
         checksum += img.depth_m[0];
       }

@@ -23,12 +23,13 @@ import yaml
 from quad_il.collection.compare import dataset_records, stamp_gaps_s
 from quad_il.collection.launch_run import run_collect
 from quad_il.tools.bench_check import format_bench_line
+from quad_il.tools.cli import HelpFormatter
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", default="1,2")
-    ap.add_argument("--episodes", type=int, default=2)
+    ap = argparse.ArgumentParser(formatter_class=HelpFormatter, description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", default="1,2", help="world seeds")
+    ap.add_argument("--episodes", type=int, default=2, help="episodes flown")
     ap.add_argument("--timeout-s", type=float, default=400.0, help="wall-time limit of the run")
     ap.add_argument("--workdir", type=Path, default=None, help="keep the dataset here (default: a temp dir)")
     args = ap.parse_args(argv)

@@ -13,8 +13,9 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from quad_il.tools import config_overlay
 
 
 class StartGoalConfig(BaseModel):
@@ -74,13 +75,12 @@ class CollectConfig(BaseModel):
 
 
 def load_collect_config(path: str | os.PathLike, overrides: dict | None = None) -> CollectConfig:
-    """Load and validate a collection config; errors name the offending key."""
+    """Load and validate a collection config; errors name the offending key. A file that is an overlay of
+    another (`overlay_of:`, quad_il.tools.config_overlay: config/il/episodes.yaml) is merged over its base."""
     p = Path(path)
     if not p.is_file():
         raise FileNotFoundError(f"collection config not found: {p}")
-    data = yaml.safe_load(p.read_text()) or {}
-    if not isinstance(data, dict):
-        raise ValueError(f"{p}: top level must be a mapping")
+    data = config_overlay.load_tree(p)  # OverlayError is a ValueError naming the file and key
     data.update({k: v for k, v in (overrides or {}).items() if v is not None})
     try:
         return CollectConfig.model_validate(data)

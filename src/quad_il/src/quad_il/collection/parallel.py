@@ -34,6 +34,7 @@ import yaml
 
 from quad_il.collection import episodes
 from quad_il.collection.launch_run import collect_command
+from quad_il.tools.cli import HelpFormatter
 from quad_il.tools.ports import free_port
 
 COLLECTION_FILE = "collection.yaml"
@@ -218,8 +219,8 @@ def run_parallel(plans: list[WorkerPlan], out: Path, timeout_s: float, resume: b
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--workers", type=int, default=2)
+    ap = argparse.ArgumentParser(formatter_class=HelpFormatter, description=__doc__.split("\n\n")[0])
+    ap.add_argument("--workers", type=int, default=2, help="parallel collect.launch workers")
     ap.add_argument("--seeds", required=True, help="world seeds, e.g. 100-199 or 1,2,3 (distinct)")
     ap.add_argument("--episodes", type=int, required=True, help="episodes over all workers")
     ap.add_argument("--out", type=Path, required=True, help="collection directory (worker_k/ inside)")

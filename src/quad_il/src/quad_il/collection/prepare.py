@@ -29,6 +29,9 @@ from pathlib import Path
 
 import yaml
 
+from quad_il.tools.cli import HelpFormatter
+from quad_il.tools.repo import repo_root
+
 TIME_MODES = {
     "lockstep": "lockstep",
     "realtime": "real_time",
@@ -39,15 +42,6 @@ SIM_CONFIG_NAME = "sim_config.yaml"
 
 class PrepareError(ValueError):
     """A bad argument of collect.launch; the message names it."""
-
-
-def repo_root() -> Path:
-    env = os.environ.get("QUAD_IL_ROOT")
-    if env:
-        return Path(env).resolve()
-    # src/quad_il/src/quad_il/collection/prepare.py -> the repository root (also through the devel space's
-    # __init__, which imports from the source tree).
-    return Path(__file__).resolve().parents[5]
 
 
 def resolve_output_dir(text: str, root: Path | None = None) -> Path:
@@ -210,21 +204,23 @@ def software_commit(root: Path | None = None) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="quad_il.collection.prepare", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(
+        formatter_class=HelpFormatter, prog="quad_il.collection.prepare", description=__doc__.splitlines()[0]
+    )
     sub = ap.add_subparsers(dest="cmd", required=True)
-    a = sub.add_parser("output-dir")
-    a.add_argument("dir")
+    a = sub.add_parser("output-dir", formatter_class=HelpFormatter)
+    a.add_argument("dir", help="output_dir as given to collect.launch")
     a.add_argument("--resume", default="false", help="true: continue the run DIR holds")
     a.add_argument("--run", action="append", default=[], metavar="KEY=VALUE", help="the run's identity")
-    b = sub.add_parser("sim-config")
-    b.add_argument("dir")
-    b.add_argument("--base", required=True)
-    b.add_argument("--time-mode", required=True)
-    b.add_argument("--factor", type=float, default=1.0)
-    b.add_argument("--consumers", default="")
-    b.add_argument("--lockstep-timeout-s", type=float, default=20.0)
+    b = sub.add_parser("sim-config", formatter_class=HelpFormatter)
+    b.add_argument("dir", help="the run's output directory")
+    b.add_argument("--base", required=True, help="simulator config the run starts from")
+    b.add_argument("--time-mode", required=True, help="one of " + ", ".join(TIME_MODES))
+    b.add_argument("--factor", type=float, default=1.0, help="real-time factor of time mode 'factor'")
+    b.add_argument("--consumers", default="", help="comma-separated lockstep depth consumers")
+    b.add_argument("--lockstep-timeout-s", type=float, default=20.0, help="lockstep wait timeout (s)")
     b.add_argument("--resume", default="false", help="true: DIR may hold the run being resumed")
-    sub.add_parser("commit")
+    sub.add_parser("commit", formatter_class=HelpFormatter)
     args = ap.parse_args(argv)
     try:
         if args.cmd == "output-dir":

@@ -27,6 +27,7 @@ from quad_il.data.postprocess import NPZ_ARRAYS, FixedSizeArrays, postprocess_da
 from quad_il.data.shards import open_dataset
 from quad_il.data.synthetic import find_collector_tool, write_synthetic_dataset
 from quad_il.tools.bench_check import format_bench_line
+from quad_il.tools.cli import HelpFormatter
 
 MB = 1e6
 
@@ -43,10 +44,10 @@ def _timed(fn: Callable[[], object], repeats: int) -> tuple[float, object]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--records", type=int, default=1000)
-    ap.add_argument("--width", type=int, default=320)
-    ap.add_argument("--height", type=int, default=240)
+    ap = argparse.ArgumentParser(formatter_class=HelpFormatter, description=__doc__.splitlines()[0])
+    ap.add_argument("--records", type=int, default=1000, help="synthetic records written")
+    ap.add_argument("--width", type=int, default=320, help="depth image width (px)")
+    ap.add_argument("--height", type=int, default=240, help="depth image height (px)")
     ap.add_argument("--rate-hz", type=float, default=100.0, help="submission rate of the record-cost run")
     ap.add_argument("--repeats", type=int, default=3, help="load timings: median of this many runs")
     ap.add_argument("--workdir", type=Path, default=None, help="keep the datasets here (default: a temp dir)")

@@ -34,6 +34,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from quad_il.data.bspline import basis_matrix, de_boor, fit_matrix, uniform_knots
 from quad_il.data.format import FORMAT_VERSION, DatasetError, EmptyDatasetError, FormatVersionError, depth_lut
 from quad_il.data.shards import LoadedRecords, OnCorrupt, open_dataset
+from quad_il.tools.cli import HelpFormatter
 
 log = logging.getLogger(__name__)
 
@@ -341,6 +342,7 @@ def postprocess_datasets(
 def main(argv: Sequence[str] | None = None) -> int:
     """CLI of training_only/cpp_dataset_postprocessing.py."""
     ap = argparse.ArgumentParser(
+        formatter_class=HelpFormatter,
         prog="cpp_dataset_postprocessing.py",
         description="Convert cpp_data_collector shards to an .npz of fixed-size arrays (docs/data_format.md)",
     )
@@ -348,15 +350,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         "in_dirs", nargs="+", metavar="IN_DIR", help="dataset directory (several are concatenated)"
     )
     ap.add_argument("out", metavar="OUT.npz", help="output file")
-    ap.add_argument("--num-ctrl-pts", type=int, default=DEFAULT_NUM_CTRL_PTS, help="K (default %(default)s)")
     ap.add_argument(
-        "--horizon-s", type=float, default=DEFAULT_HORIZON_S, help="seconds (default %(default)s)"
+        "--num-ctrl-pts",
+        type=int,
+        default=DEFAULT_NUM_CTRL_PTS,
+        help="K, control points of the resampled B-spline",
+    )
+    ap.add_argument(
+        "--horizon-s", type=float, default=DEFAULT_HORIZON_S, help="time span of the resampled B-spline (s)"
     )
     ap.add_argument(
         "--on-corrupt",
         choices=["raise", "skip"],
         default="raise",
-        help="what to do with records failing CRC or torn completed shards (default %(default)s)",
+        help="what to do with records failing CRC or torn completed shards",
     )
     ap.add_argument("--compress", action="store_true", help="np.savez_compressed (smaller, slower to load)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")

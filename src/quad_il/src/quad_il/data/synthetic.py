@@ -16,7 +16,7 @@ import subprocess
 from collections.abc import Sequence
 from pathlib import Path
 
-_REPO_ROOT = Path(__file__).resolve().parents[4]
+from quad_il.tools.repo import RepoRootError, repo_path
 
 
 def find_collector_tool(name: str) -> Path:
@@ -27,7 +27,10 @@ def find_collector_tool(name: str) -> Path:
     for prefix in os.environ.get("CMAKE_PREFIX_PATH", "").split(os.pathsep):
         if prefix:
             candidates.append(Path(prefix) / "lib" / "cpp_data_collector" / name)
-    candidates.append(_REPO_ROOT / "devel" / "lib" / "cpp_data_collector" / name)
+    try:
+        candidates.append(repo_path("devel", "lib", "cpp_data_collector", name))
+    except RepoRootError:
+        pass  # outside a checkout: the two places above are the only ones
     for c in candidates:
         if c.is_file() and os.access(c, os.X_OK):
             return c

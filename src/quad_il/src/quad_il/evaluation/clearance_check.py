@@ -13,7 +13,7 @@ plans (issue 30; docs/fast_planner.md, "Clearance against the simulator's boxes"
    vehicle box's circumscribed radius and minus its inscribed radius; otherwise the world file and the flight
    disagree, which is a violation too.
 
-2. The safety layer (inference.safety.check_trajectory, the Python twin of quad_policy's, with the `safety`
+2. The safety layer (quad_policy's, bound as inference.core.check_trajectory, with the `safety`
    section of --policy-config): at every K-th expert plan the depth frame the plan used is judged with seeded
    candidate plans from the vehicle's odometry (straight and turning ones in and beside the view, and ones
    stopping short of a surface the frame shows). What the layer guarantees for a plan it accepts, and what is
@@ -48,13 +48,13 @@ from typing import TextIO
 import numpy as np
 import yaml
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 from quad_il.evaluation.metrics import Box, point_box_distances
 from quad_il.inference.config import SafetyConfig, load_policy_config
-from quad_il.inference.geometry import pose_matrix
-from quad_il.inference.safety import CameraModel, check_trajectory, safety_sample_times
-from quad_il.inference.trajectory import UniformBspline
+from quad_il.inference.core import CameraModel, UniformBspline, check_trajectory, safety_sample_times
 from quad_il.tools.binaries import find_binary
+from quad_il.tools.cli import HelpFormatter
 
 FloatArray = NDArray[np.float64]
 
@@ -191,6 +191,14 @@ def sphere_in_view(
     return inside & (np.linalg.norm(c, axis=1) + radius_m <= max_depth_m)
 
 
+def _pose_matrix(p: FloatArray, q_xyzw: FloatArray) -> FloatArray:
+    """4 x 4 transform of a position and a rotation (x, y, z, w)."""
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_quat(q_xyzw).as_matrix()
+    T[:3, 3] = p
+    return T
+
+
 def _uniform(ctrl: FloatArray, knot_dt_s: float, start_time_s: float) -> UniformBspline:
     return UniformBspline(start_time_s=start_time_s, knot_dt_s=knot_dt_s, ctrl_world=np.asarray(ctrl))
 
@@ -290,11 +298,6 @@ def check_plans_on_frame(
     where: str,
 ) -> SafetyTally:
     """Runs the safety layer on each plan with this frame and checks every accepted one's guarantee."""
-    if cfg.memory_frames != 0:
-        raise ClearanceCheckError(
-            f"safety.memory_frames = {cfg.memory_frames}: the check covers the latest frame's guarantee only "
-            "(use a policy config with memory_frames: 0)"
-        )
     tally = SafetyTally(frames=1)
     r = cfg.vehicle_radius_m
     r_vehicle = 0.5 * float(np.linalg.norm(vehicle_box_m))
@@ -304,7 +307,7 @@ def check_plans_on_frame(
         tally.plans += 1
         result = check_trajectory(plan, frame.p_world_body, frame.depth_m, cam, cfg)
         if not result.accepted:
-            label = result.verdict.label
+            label = result.label
             tally.refusals[label] = tally.refusals.get(label, 0) + 1
             continue
         tally.accepted += 1
@@ -360,7 +363,7 @@ def load_frames(meta_path: Path, pixels_path: Path) -> list[FrameData]:
                 m["fy"],
                 m["cx"],
                 m["cy"],
-                pose_matrix(m["p_world_camera"], m["q_world_camera"]),
+                _pose_matrix(m["p_world_camera"], m["q_world_camera"]),
             )
             frames.append(
                 FrameData(
@@ -416,7 +419,7 @@ def run_flights(
     seeds: Sequence[int], out_dir: Path, args: argparse.Namespace, jobs: int
 ) -> list[tuple[dict, Path]]:
     """Runs expert_clearance_flights over the seeds in `jobs` parallel chunks; (flight record, chunk dir)."""
-    tool = find_binary("fast_planner", "expert_clearance_flights")
+    tool = find_binary("quad_bench", "expert_clearance_flights")
     chunks = [list(seeds[i::jobs]) for i in range(jobs) if seeds[i::jobs]]
 
     def run(k: int, chunk: list[int]) -> Path:
@@ -559,18 +562,19 @@ def print_summary(summary: Summary, out: TextIO | None = None) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
+        formatter_class=HelpFormatter,
         prog="python -m quad_il.evaluation.clearance_check",
         description="Fly the expert over seeded worlds and check the flights and the safety layer's accepted "
         "plans against the simulator's exact boxes (docs/fast_planner.md).",
     )
-    p.add_argument("--worlds", type=int, default=100, help="number of seeded worlds (default 100)")
+    p.add_argument("--worlds", type=int, default=100, help="number of seeded worlds")
     p.add_argument(
         "--seed0", type=int, default=1, help="first world seed; worlds seed0 .. seed0 + worlds - 1"
     )
     p.add_argument("--density", type=float, default=0.0, help="boxes per 100 m^2 (0: the sim config's count)")
-    p.add_argument("--planner-config", type=Path, default=Path("config/planner.yaml"))
-    p.add_argument("--sim-config", type=Path, default=Path("config/sim.yaml"))
-    p.add_argument("--tracker-config", type=Path, default=Path("config/tracker.yaml"))
+    p.add_argument("--planner-config", type=Path, default=Path("config/planner.yaml"), help="expert config")
+    p.add_argument("--sim-config", type=Path, default=Path("config/sim.yaml"), help="simulator config")
+    p.add_argument("--tracker-config", type=Path, default=Path("config/tracker.yaml"), help="tracker config")
     p.add_argument(
         "--policy-config", type=Path, default=Path("config/policy_keep.yaml"), help="its safety section"
     )

@@ -22,6 +22,7 @@ from pathlib import Path
 
 from quad_il.evaluation.episodes import EpisodeResult, read_episodes, read_results
 from quad_il.evaluation.stats import mcnemar_exact_p
+from quad_il.tools.cli import HelpFormatter
 
 OUTCOME_ORDER = ("goal_reached", "collision", "timeout")
 
@@ -119,10 +120,12 @@ def markdown(c: Comparison, name_a: str, name_b: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
     ap.add_argument("run_a", help="run_eval output directory (the baseline)")
     ap.add_argument("run_b", help="run_eval output directory of the same episodes (the variant)")
-    ap.add_argument("--controller", default="cpp", choices=("expert", "py", "cpp"))
+    ap.add_argument(
+        "--controller", default="cpp", choices=("expert", "py", "cpp"), help="controller compared"
+    )
     ap.add_argument("--out", default="", help="also write the summary to this Markdown file")
     args = ap.parse_args(argv)
     try:

@@ -8,13 +8,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 from quad_il.evaluation.episodes import OUTCOMES, EpisodeResult
-from quad_il.inference.geometry import rotation_matrix
 
 FloatArray = NDArray[np.float64]
 
-# The safety layer's refusal names (inference.safety.SafetyVerdict labels other than "accepted").
+# The safety layer's refusal names (inference.core.VERDICT_LABELS other than "accepted").
 REFUSAL_NAMES = frozenset(
     {
         "non_finite_output",
@@ -41,7 +41,7 @@ def point_box_distances(points: FloatArray, boxes: Sequence[Box]) -> FloatArray:
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     best = np.full(len(pts), np.inf)
     for b in boxes:
-        local = (pts - b.center) @ rotation_matrix(b.q_xyzw)  # rows: R^T (p - c)
+        local = (pts - b.center) @ Rotation.from_quat(b.q_xyzw).as_matrix()  # rows: R^T (p - c)
         excess = np.maximum(np.abs(local) - 0.5 * np.asarray(b.size), 0.0)
         best = np.minimum(best, np.linalg.norm(excess, axis=1))
     return best
@@ -87,8 +87,6 @@ class ControllerSummary:
     decisions: int
     refusals: int
     recovered: int = 0  # refused decisions for which the recovery found a plan (config recovery)
-    steered: int = 0  # accepted decisions replaced by a turned plan keeping recovery.steer_clearance_m
-    turning: int = 0  # stopping trajectories that turned the vehicle in place (recovery.turn_after_stops)
     final_approach: int = (
         0  # decisions that sent the trajectory straight to the goal (recovery.final_approach_m)
     )
@@ -132,8 +130,6 @@ def summarise(controller: str, results: Sequence[EpisodeResult]) -> ControllerSu
         decisions=sum(r.decisions for r in rs),
         refusals=refusals,
         recovered=sum(r.counts.get("recovered", 0) for r in rs),
-        steered=sum(r.counts.get("steered", 0) for r in rs),
-        turning=sum(r.counts.get("turning", 0) for r in rs),
         final_approach=sum(r.counts.get("final_approach", 0) for r in rs),
         kept=sum(r.counts.get("kept", 0) + r.counts.get("committed", 0) for r in rs),
         committed=sum(r.counts.get("committed", 0) for r in rs),
@@ -147,3 +143,53 @@ def _lockstep_timeouts(rs: Sequence[EpisodeResult]) -> int | None:
     if any(k is None for k in known):
         return None
     return int(sum(known))
+
+
+def boxes_from_markers(markers: Sequence) -> list[Box]:
+    """The world's boxes from the simulator's world markers (visualization_msgs/Marker, namespace "boxes")."""
+    return [
+        Box(
+            np.array([m.pose.position.x, m.pose.position.y, m.pose.position.z]),
+            np.array(
+                [m.pose.orientation.x, m.pose.orientation.y, m.pose.orientation.z, m.pose.orientation.w]
+            ),
+            np.array([m.scale.x, m.scale.y, m.scale.z]),
+        )
+        for m in markers
+        if m.ns == "boxes" and m.action == m.ADD
+    ]
+
+
+def summarise_flight(
+    res: EpisodeResult,
+    t0: float,
+    t_end: float,
+    points: np.ndarray,
+    boxes: list[Box],
+    vehicle_box_m: np.ndarray,
+    decision_ms: list[float],
+    plan_ms: list[float],
+    counts: dict[str, int] | None = None,
+    tracker_rejections: int = 0,
+) -> EpisodeResult:
+    """Fills `res` with what was recorded between the goal (t0) and the end (t_end), sim time: `points` rows
+    [t, x, y, z] of the odometry, the world's boxes, the policy's decision latencies (decided frames) or,
+    without any, the expert's plan latencies (map update + plan), and the policy's last counts."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 4)
+    if res.outcome == "goal_reached":
+        res.time_to_goal_s = t_end - t0
+    res.flight_time_s = t_end - t0
+    res.path_length_m = path_length(points[:, 1:])
+    res.min_clearance_m = clearance_lower_bound(points[:, 1:], boxes, vehicle_box_m)
+    if len(points):
+        # The trajectory at 10 Hz: the first sample of every 0.1 s cell.
+        keep = np.unique(np.floor((points[:, 0] - points[0, 0]) * 10.0), return_index=True)[1]
+        res.trajectory = points[keep].round(4).tolist()
+    latencies = decision_ms or plan_ms
+    if latencies:
+        res.decisions = len(latencies)
+        res.decision_ms = [round(v, 4) for v in latencies]
+    if counts is not None:
+        res.counts = dict(counts)
+        res.tracker_rejections = int(tracker_rejections)
+    return res

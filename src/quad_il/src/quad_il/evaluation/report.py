@@ -14,13 +14,13 @@ from typing import Any
 import numpy as np
 import yaml
 from scipy.spatial import ConvexHull
+from scipy.spatial.transform import Rotation
 
 from quad_il.collection.episodes import EpisodeSpec
 from quad_il.evaluation.episodes import EpisodeResult, read_results
 from quad_il.evaluation.metrics import ControllerSummary, summarise
 from quad_il.evaluation.pin import RunPin
 from quad_il.evaluation.stats import format_rate, wilson_interval
-from quad_il.inference.geometry import rotation_matrix
 from quad_il.tools.binaries import BinaryNotFound, find_binary
 
 COLOURS = {"expert": "tab:blue", "py": "tab:green", "cpp": "tab:orange"}
@@ -143,7 +143,9 @@ def _box_footprint(box: dict[str, Any]) -> np.ndarray:
     """xy convex hull of an oriented box's corners (counter-clockwise)."""
     half = 0.5 * np.asarray(box["size_m"], dtype=np.float64)
     signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=np.float64)
-    corners = (signs * half) @ rotation_matrix(np.asarray(box["q_xyzw"])).T + np.asarray(box["center_m"])
+    corners = (signs * half) @ Rotation.from_quat(np.asarray(box["q_xyzw"])).as_matrix().T + np.asarray(
+        box["center_m"]
+    )
     pts = corners[:, :2]
     return pts[ConvexHull(pts).vertices]
 
@@ -279,8 +281,8 @@ def write_report(
         "| controller | tier | episodes | success [95 % CI] | collision [95 % CI] | timeout [95 % CI] | "
         "reset/take-off failed | reproducible | mean time to goal (s) | mean path length (m) | "
         "min clearance (m) | median min clearance (m) | decision ms median | decision ms p99 | decisions | "
-        "refusals (recovered) | steered | turning | final approach | kept (committed) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "refusals (recovered) | final approach | kept (committed) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for c, s in summaries.items():
         lines.append(
@@ -291,11 +293,11 @@ def write_report(
             f"{_fmt(s.other_rate, pct=True)} | {_reproducible(s)} | {_fmt(s.mean_time_to_goal_s, 1)} | "
             f"{_fmt(s.mean_path_length_m, 1)} | {_fmt(s.min_clearance_m)} | "
             f"{_fmt(s.median_min_clearance_m)} | {_fmt(s.decision_ms_median, 3)} | "
-            f"{_fmt(s.decision_ms_p99, 3)} | {s.decisions} | {s.refusals} ({s.recovered}) | {s.steered} | "
-            f"{s.turning} | {s.final_approach} | {s.kept} ({s.committed}) |"
+            f"{_fmt(s.decision_ms_p99, 3)} | {s.decisions} | {s.refusals} ({s.recovered}) | "
+            f"{s.final_approach} | {s.kept} ({s.committed}) |"
         )
     for c, why in skipped.items():
-        lines.append(f"| {NAMES.get(c, c)} | not run: {why} |||||||||||||||||||")
+        lines.append(f"| {NAMES.get(c, c)} | not run: {why} |||||||||||||||||")
     lines += [
         "",
         "Success, collision and timeout are shares of all episodes, each with its 95 % Wilson score interval "
@@ -307,13 +309,10 @@ def write_report(
         "exact box-to-box clearance; the ground is not counted). Decision latency: policies preprocessing + "
         "forward + message (policy/decision), expert map update + plan (planner/timing). Refusals: decisions "
         "whose policy plan the safety layer refused; recovered: of those, the ones the recovery (policy "
-        "config `recovery`) replaced with an accepted plan for a turned goal. Steered: accepted decisions "
-        "replaced by a turned goal's plan that keeps `recovery.steer_clearance_m` from what the camera sees. "
-        "Turning: refused decisions whose stopping trajectory turned the vehicle in place "
-        "(`recovery.turn_after_stops`; they stay counted as refusals). Final approach: decisions that sent "
-        "the trajectory straight to the goal instead (`recovery.final_approach_m`; not learned). Kept: "
-        "decisions that sent nothing while the plan sent before flew on (config `keeping`); committed: of "
-        "those, the ones kept because the plan was younger than `keeping.commit_s`.",
+        "config `recovery`) replaced with an accepted plan for a turned goal. Final approach: decisions "
+        "that sent the trajectory straight to the goal instead (`recovery.final_approach_m`; not learned). "
+        "Kept: decisions that sent nothing while the plan sent before flew on (config `keeping`); "
+        "committed: of those, the ones kept because the plan was younger than `keeping.commit_s`.",
         "",
     ]
     if summaries:

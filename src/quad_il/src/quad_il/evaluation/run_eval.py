@@ -5,7 +5,7 @@ flown by each controller (expert, Python policy, C++ policy); then the Markdown 
         [--set dev|dev_dense|test|test_dense] [--seeds 9000-9019 --episodes 20 --density 12.5]
         [--tier bare|safety|shield] [--force-new]
         [--controllers expert,py,cpp] [--out results/eval] [--sim-config config/sim.yaml]
-        [--policy-config config/policy_keep.yaml] [--episode-timeout-s 60]
+        [--policy-config config/policy.yaml] [--episode-timeout-s 60]
         [--min-distance-m 20 --max-distance-m 30] [--snapshots 8,15] [--episode-mode relaunch|reset]
         [--setup-retries 1] [--report-only]
 
@@ -21,7 +21,7 @@ lockstep with the controller and the runner as depth consumers, tracker, control
 quad_il.evaluation.runner` flies every episode through the simulator's reset service; results are appended
 to OUT/<controller>.jsonl (an interrupted run resumes after the last finished episode). A controller whose
 node is not built is reported as unavailable. With
---snapshots, rviz snapshots (tools/snapshot.py) are taken at those sim times of each controller's run.
+--snapshots, rviz snapshots (evaluation/snapshot.py) are taken at those sim times of each controller's run.
 BENCH lines: eval_expert_{success,collision,timeout}_rate and eval_<py|cpp>_<tier>_{success,collision,
 timeout}_rate (ratios in [0, 1]).
 """
@@ -53,14 +53,16 @@ from quad_il.evaluation.pin import RunPin, differences, merge, read_pin, write_p
 from quad_il.evaluation.sets import EvalSetError, get_eval_set, world_density
 from quad_il.evaluation.tiers import DEFAULT_TIER, TIERS, TierError, render_tier_config
 from quad_il.tools.binaries import BinaryNotFound, find_binary
+from quad_il.tools.cli import HelpFormatter
 from quad_il.tools.ports import free_port
 from quad_il.tools.provenance import git_commit, sha256_bytes, sha256_file
+from quad_il.tools.repo import repo_root
 
-ROOT = Path(os.environ.get("QUAD_IL_ROOT") or Path(__file__).resolve().parents[5])
+ROOT = repo_root()
 CONTROLLERS = ("expert", "py", "cpp")
 # The policy nodes' config when none is given: the recovery at 10 Hz, the final approach and the plan kept
 # (docs/inference.md, "Keeping the plan"; docs/RESULTS.md).
-DEFAULT_POLICY_CONFIG = ROOT / "config" / "policy_keep.yaml"
+DEFAULT_POLICY_CONFIG = ROOT / "config" / "policy.yaml"
 DEFAULT_SETS = ROOT / "config" / "eval_sets.yaml"
 PLANNER_CONFIG = ROOT / "config" / "planner.yaml"  # the expert's (launch/planner.launch default)
 DEFAULT_SEEDS, DEFAULT_EPISODES = "9000-9019", 20  # without --set
@@ -201,13 +203,13 @@ def _start_snapshots(
             [
                 sys.executable,
                 "-m",
-                "quad_il.tools.snapshot",
+                "quad_il.evaluation.snapshot",
                 "--out",
                 str(out / "snapshots" / controller),
                 "--times",
                 args.snapshots,
                 "--trajectory",
-                f"/planner/bspline:{label}",
+                f"planner/bspline:{label}",
                 "--size",
                 "960x600",
                 "--timeout-s",
@@ -306,7 +308,7 @@ def run_controller(args: argparse.Namespace, controller: str, out: Path, episode
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(formatter_class=HelpFormatter, description=__doc__.split("\n\n")[0])
     ap.add_argument("--policy", default="", help="exported policy (policy.ts) for the py and cpp controllers")
     ap.add_argument(
         "--set",
@@ -334,13 +336,13 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="OUT holds a run flown with something else: move it aside (OUT.old-<time>) and start over",
     )
-    ap.add_argument("--controllers", default=",".join(CONTROLLERS))
-    ap.add_argument("--out", default=str(ROOT / "results" / "eval"))
-    ap.add_argument("--sim-config", default=str(ROOT / "config" / "sim.yaml"))
+    ap.add_argument("--controllers", default=",".join(CONTROLLERS), help="comma-separated controllers flown")
+    ap.add_argument("--out", default=str(ROOT / "results" / "eval"), help="output directory")
+    ap.add_argument("--sim-config", default=str(ROOT / "config" / "sim.yaml"), help="simulator config")
     ap.add_argument(
         "--policy-config",
         default=str(DEFAULT_POLICY_CONFIG),
-        help="policy node config the tier applies to (default: config/policy_keep.yaml)",
+        help="policy node config the tier applies to",
     )
     ap.add_argument("--episode-timeout-s", type=float, default=60.0, help="sim time per episode")
     ap.add_argument("--wall-timeout-s", type=float, default=7200.0, help="wall time per controller")
@@ -350,8 +352,8 @@ def main(argv: list[str] | None = None) -> int:
         default=1,
         help="relaunch mode: times an episode is started afresh when its nodes fail to start up",
     )
-    ap.add_argument("--min-distance-m", type=float, default=20.0)
-    ap.add_argument("--max-distance-m", type=float, default=30.0)
+    ap.add_argument("--min-distance-m", type=float, default=20.0, help="least start-goal distance")
+    ap.add_argument("--max-distance-m", type=float, default=30.0, help="largest start-goal distance")
     ap.add_argument(
         "--snapshots", default="", help="comma-separated sim times of rviz snapshots per controller"
     )

@@ -9,15 +9,12 @@ runner is one of the simulator's depth consumers and acts at held frames (quad_i
 episode's flight starts at the same sim time in every run. Decision latencies come from policy/decision
 (policy nodes: preprocessing + forward + message) or planner/timing (expert: map update + plan).
 
-    python -m quad_il.evaluation.runner --episodes episodes.json --controller cpp --out cpp.jsonl
-        [--episode-timeout-s 60] [--takeoff-timeout-s 20] [--vehicle-box-m 0.25,0.25,0.25]
-        [--lockstep-consumer eval_runner --controller-consumer policy] [--no-reset]
-(needs ROS_MASTER_URI of a running simulator + tracker + controller; results are appended as JSON lines)
+Command line: quad_il.evaluation.runner_args (`--help`); needs ROS_MASTER_URI of a running simulator +
+tracker + controller; results are appended as JSON lines.
 """
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 import threading
@@ -30,14 +27,21 @@ from geometry_msgs.msg import Point, Pose, Quaternion
 from visualization_msgs.msg import MarkerArray
 
 from quad_il.collection.episodes import EpisodeSpec
-from quad_il.evaluation.episodes import GROUND_Z_M, EpisodeResult, append_result, read_episodes
-from quad_il.evaluation.metrics import Box, clearance_lower_bound, path_length
+from quad_il.evaluation.episodes import (
+    GROUND_Z_M,
+    EpisodeResult,
+    append_result,
+    read_episodes,
+)
+from quad_il.evaluation.metrics import Box, boxes_from_markers, summarise_flight
+from quad_il.evaluation.runner_args import parse_args
 from quad_il.lockstep import ControllerGoal, FrameGate, Interrupted, OdometryHistory, TrackerGoto, wait_until
+from quad_il.ros_params import wait_for_param
 from quad_msgs.msg import EpisodeStatus, PlanTiming, PolicyDecision, SimStats
 from quad_msgs.srv import ResetEpisode
 
 # Where each controller answers a goal ("goal accepted: ..." / "goal rejected: ...").
-STATUS_TOPIC = {"expert": "/planner/status", "py": "/policy/status", "cpp": "/policy/status"}
+STATUS_TOPIC = {"expert": "planner/status", "py": "policy/status", "cpp": "policy/status"}
 WALL_WAIT_S = 30.0  # wall-time limit of any wait on another node
 
 
@@ -78,19 +82,19 @@ class EpisodeRunner:
         # (stamp, count) of that episode.
         self._stats_first: dict[int, int] = {}
         self._stats_last: dict[int, tuple[float, int]] = {}
-        rospy.Subscriber("/sim/status", EpisodeStatus, self._on_status, queue_size=10)
-        rospy.Subscriber("/sim/stats", SimStats, self._on_stats, queue_size=200, tcp_nodelay=True)
-        rospy.Subscriber("/sim/world_markers", MarkerArray, self._on_markers, queue_size=2)
-        rospy.Subscriber("/policy/decision", PolicyDecision, self._on_decision, queue_size=200)
-        rospy.Subscriber("/planner/timing", PlanTiming, self._on_timing, queue_size=200)
+        rospy.Subscriber("sim/status", EpisodeStatus, self._on_status, queue_size=10)
+        rospy.Subscriber("sim/stats", SimStats, self._on_stats, queue_size=200, tcp_nodelay=True)
+        rospy.Subscriber("sim/world_markers", MarkerArray, self._on_markers, queue_size=2)
+        rospy.Subscriber("policy/decision", PolicyDecision, self._on_decision, queue_size=200)
+        rospy.Subscriber("planner/timing", PlanTiming, self._on_timing, queue_size=200)
         self.goal = ControllerGoal(controller_consumer, STATUS_TOPIC[controller], self.lockstep, WALL_WAIT_S)
         # The whole episode's odometry: the take-off check and the recorded path.
         self.odom = OdometryHistory(keep=None, wall_wait_s=WALL_WAIT_S)
         self.goto = TrackerGoto(self.lockstep, wall_wait_s=WALL_WAIT_S)
         self.frames = FrameGate(consumer or "", self.lockstep, WALL_WAIT_S)
-        rospy.wait_for_service("/sim/reset", timeout=60.0)
-        rospy.wait_for_service("/tracker/goto", timeout=60.0)
-        self.reset_srv = rospy.ServiceProxy("/sim/reset", ResetEpisode)
+        rospy.wait_for_service("sim/reset", timeout=60.0)
+        rospy.wait_for_service("tracker/goto", timeout=60.0)
+        self.reset_srv = rospy.ServiceProxy("sim/reset", ResetEpisode)
 
     # ---- callbacks ----
     def _on_status(self, msg: EpisodeStatus) -> None:
@@ -106,17 +110,7 @@ class EpisodeRunner:
             self._cv.notify_all()
 
     def _on_markers(self, msg: MarkerArray) -> None:
-        boxes = [
-            Box(
-                np.array([m.pose.position.x, m.pose.position.y, m.pose.position.z]),
-                np.array(
-                    [m.pose.orientation.x, m.pose.orientation.y, m.pose.orientation.z, m.pose.orientation.w]
-                ),
-                np.array([m.scale.x, m.scale.y, m.scale.z]),
-            )
-            for m in msg.markers
-            if m.ns == "boxes" and m.action == m.ADD
-        ]
+        boxes = boxes_from_markers(msg.markers)
         with self._cv:
             self._boxes = boxes
             self._markers_seen += 1
@@ -289,73 +283,24 @@ class EpisodeRunner:
             decisions = [d for d in self._decisions if t0 - eps <= d.header.stamp.to_sec() <= t_end + eps]
             timings = [m for m in self._timings if t0 - eps <= m.header.stamp.to_sec() <= t_end + eps]
             boxes = list(self._boxes)
-        res = self._result(spec, outcome, reason, lockstep_timeouts)
-        if outcome == "goal_reached":
-            res.time_to_goal_s = t_end - t0
-        res.flight_time_s = t_end - t0
-        res.path_length_m = path_length(points[:, 1:])
-        res.min_clearance_m = clearance_lower_bound(points[:, 1:], boxes, self.vehicle_box_m)
-        if len(points):
-            keep = np.unique(np.floor((points[:, 0] - points[0, 0]) * 10.0), return_index=True)[1]
-            res.trajectory = points[keep].round(4).tolist()
-        decided = [d for d in decisions if d.status == "decided"]
-        if decided:
-            res.decisions = len(decided)
-            res.decision_ms = [round(d.decision_ms, 4) for d in decided]
-        elif timings:
-            res.decisions = len(timings)
-            res.decision_ms = [round(m.map_update_ms + m.total_ms, 4) for m in timings]
-        if decisions:
-            last = decisions[-1]
-            res.counts = dict(zip(last.count_names, (int(v) for v in last.count_values), strict=True))
-            res.tracker_rejections = int(last.tracker_rejections)
-        return res
-
-
-def wait_for_param(name: str, timeout_s: float) -> bool:
-    """True once the ROS master holds the parameter (polled every 0.1 s, wall clock)."""
-    import rosgraph
-
-    master = rosgraph.Master("/eval_runner_probe")
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        try:
-            if master.hasParam(name):
-                return True
-        except OSError:  # the master is not up yet
-            pass
-        time.sleep(0.1)
-    return False
+        decided = [round(d.decision_ms, 4) for d in decisions if d.status == "decided"]
+        last = decisions[-1] if decisions else None
+        return summarise_flight(
+            self._result(spec, outcome, reason, lockstep_timeouts),
+            t0,
+            t_end,
+            points,
+            boxes,
+            self.vehicle_box_m,
+            decision_ms=decided,
+            plan_ms=[m.map_update_ms + m.total_ms for m in timings],
+            counts=dict(zip(last.count_names, map(int, last.count_values), strict=True)) if last else None,
+            tracker_rejections=last.tracker_rejections if last else 0,
+        )
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--episodes", required=True, help="episodes.json (evaluation.episodes.write_episodes)")
-    ap.add_argument("--controller", required=True, choices=["expert", "py", "cpp"])
-    ap.add_argument("--out", required=True, help="results file (JSON lines, appended)")
-    ap.add_argument("--episode-timeout-s", type=float, default=60.0)
-    ap.add_argument("--takeoff-timeout-s", type=float, default=20.0)
-    ap.add_argument("--vehicle-box-m", default="0.25,0.25,0.25")
-    ap.add_argument(
-        "--lockstep-consumer",
-        default="",
-        help="FrameAck consumer name of this runner, listed in the simulator's lockstep.depth_consumers: "
-        "act at held frames (reproducible flights); '' acts at the newest frame",
-    )
-    ap.add_argument(
-        "--controller-consumer",
-        default="",
-        help="the controller's FrameAck consumer name (with --lockstep-consumer)",
-    )
-    ap.add_argument(
-        "--no-reset",
-        action="store_true",
-        help="one episode, the one the simulator runs since its start (its config holds seed, start, goal)",
-    )
-    args = ap.parse_args(rospy.myargv(argv if argv is not None else sys.argv)[1:])
-    if args.lockstep_consumer and not args.controller_consumer:
-        print("[eval] --lockstep-consumer needs --controller-consumer", file=sys.stderr)
-        return 2
+    args = parse_args(rospy.myargv(argv if argv is not None else sys.argv)[1:])
     # rospy reads /use_sim_time once, in init_node: wait until the launch file has set it (the runner may
     # start before roslaunch has set its parameters), or every wait below would run on the wall clock.
     if not wait_for_param("/use_sim_time", 60.0):

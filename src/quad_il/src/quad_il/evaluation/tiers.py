@@ -1,17 +1,17 @@
 """Evaluation tiers (issue 30): how much hand-written behaviour stands between the network and the tracker.
 
-A tier is an overlay of a few policy-node config keys on a base config (default config/policy_keep.yaml); the
-result is a complete config that both nodes read strictly, written into the evaluation directory and pinned
-by its hash. Keys a tier does not name (rates, odometry age, the stopping trajectory, limits) keep the base's
-value.
+A tier is an overlay of a few policy-node config keys on a base config (default config/policy.yaml, itself
+merged over its base when it is an overlay); the result is a complete config that both nodes read strictly,
+written into the evaluation directory and pinned by its hash. Keys a tier does not name (rates, odometry age,
+the stopping trajectory, limits) keep the base's value.
 
 - `bare`: the network's plan is sent as it is. Only a non-finite output is refused (the node then sends the
   refusal action, a braking trajectory); no depth or limit check, no recovery, final approach or keeping.
-- `safety`: the depth and limit checks of `safety` refuse; a refusal brakes. No recovery, steering, turning,
-  final approach or keeping.
-- `shield`: the base config as it is (config/policy_keep.yaml: recovery, final approach, keeping the plan).
+- `safety`: the depth and limit checks of `safety` refuse; a refusal brakes. No recovery, final approach or
+  keeping.
+- `shield`: the base config as it is (config/policy.yaml: recovery, final approach, keeping the plan).
 
-    python -m quad_il.evaluation.tiers --tier bare [--base config/policy_keep.yaml] --out policy_bare.yaml
+    python -m quad_il.evaluation.tiers --tier bare [--base config/policy.yaml] --out policy_bare.yaml
 """
 
 from __future__ import annotations
@@ -25,6 +25,8 @@ from typing import Any
 import yaml
 
 from quad_il.inference.config import PolicyConfigError, config_from_tree
+from quad_il.tools.cli import HelpFormatter
+from quad_il.tools.config_overlay import OverlayError, load_tree
 
 TIERS = ("bare", "safety", "shield")
 DEFAULT_TIER = "shield"
@@ -32,16 +34,11 @@ DEFAULT_TIER = "shield"
 # Everything hand-written that is not the safety layer's refusal, switched off.
 _NO_BEHAVIOURS: dict[str, dict[str, Any]] = {
     "refusal": {"action": "stop"},
-    "recovery": {
-        "goal_yaw_offsets_deg": [],
-        "steer_clearance_m": 0.0,
-        "turn_after_stops": 0,
-        "final_approach_m": 0.0,
-    },
+    "recovery": {"goal_yaw_offsets_deg": [], "final_approach_m": 0.0},
     "keeping": {"commit_s": 0.0, "on_refusal": False},
 }
 OVERLAYS: dict[str, dict[str, dict[str, Any]]] = {
-    "bare": {**_NO_BEHAVIOURS, "safety": {"enabled": False, "memory_frames": 0}},
+    "bare": {**_NO_BEHAVIOURS, "safety": {"enabled": False}},
     "safety": {**_NO_BEHAVIOURS, "safety": {"enabled": True}},
     "shield": {},
 }
@@ -77,11 +74,9 @@ def render_tier_config(base_path: str | Path, tier: str) -> str:
     """The tier's complete node config as YAML text, with a header naming the base and the tier."""
     base_path = Path(base_path)
     try:
-        base = yaml.safe_load(base_path.read_text())
-    except OSError as e:
-        raise TierError(f"{base_path}: cannot read the base node config ({e.strerror})") from None
-    except yaml.YAMLError as e:
-        raise TierError(f"{base_path}: not valid YAML: {e}") from None
+        base = load_tree(base_path)  # an overlay: merged over its base chain
+    except OverlayError as e:
+        raise TierError(f"{base_path}: cannot read the base node config: {e}") from None
     tree = apply_tier(base, tier, str(base_path))
     header = (
         f"# Policy node config of evaluation tier '{tier}': {base_path.name} with quad_il.evaluation.tiers.\n"
@@ -99,9 +94,9 @@ def write_tier_config(base_path: str | Path, tier: str, out_path: str | Path) ->
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(formatter_class=HelpFormatter, description=__doc__.split("\n\n")[0])
     ap.add_argument("--tier", required=True, choices=TIERS)
-    ap.add_argument("--base", default="config/policy_keep.yaml", help="the node config the tier applies to")
+    ap.add_argument("--base", default="config/policy.yaml", help="the node config the tier applies to")
     ap.add_argument("--out", required=True, help="where to write the complete node config")
     args = ap.parse_args(argv)
     try:

@@ -18,9 +18,9 @@ Deviation metric (the HG-DAgger / EIL / MEGA-DAgger gate; docs/imitation_learnin
                            pointwise distance of two splines on the same knots never exceeds
                            max_i ||P_a,i - P_b,i||.
 
-Both are in metres. We write the evaluation ourselves (de Boor's algorithm) rather than use
-scipy.interpolate.BSpline because we need Fast-Planner's clamping of time into the domain and per-call
-validation with clear messages; the tests compare against scipy.
+Both are in metres. The evaluation is the project's one numpy B-spline module (quad_il.data.bspline, de Boor's
+algorithm); this module adds Fast-Planner's clamping of time into the domain and validation with clear
+messages; the tests compare against scipy.
 """
 
 from __future__ import annotations
@@ -31,6 +31,8 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from quad_il.data.bspline import evaluate
 
 FloatArray = NDArray[np.float64]
 
@@ -133,7 +135,7 @@ class SplineAction:
             raise SplineError("evaluation times contain NaN or Inf")
         lo, hi = self._domain
         u = np.clip(lo + (t - self.start_time_s), lo, hi)
-        return _de_boor(self.knots, self.ctrl_pts_world, self.order, u)
+        return evaluate(self.knots, self.ctrl_pts_world, self.order, u)
 
     def same_representation(self, other: SplineAction) -> bool:
         return self.order == other.order and self.num_ctrl == other.num_ctrl
@@ -147,26 +149,6 @@ class SplineAction:
             and bool(np.allclose(self.knots, other.knots, rtol=0.0, atol=atol))
             and abs(self.start_time_s - other.start_time_s) <= atol
         )
-
-
-def _de_boor(knots: FloatArray, ctrl: FloatArray, p: int, u: FloatArray) -> FloatArray:
-    """Evaluate the spline at parameters u (already inside the domain), vectorised over u."""
-    n = ctrl.shape[0]
-    # Knot span index k with knots[k] <= u < knots[k+1], restricted to [p, n-1] so the last point is included.
-    k = np.searchsorted(knots, u, side="right") - 1
-    k = np.clip(k, p, n - 1)
-    # d[j] = ctrl[k - p + j], j = 0..p, for every sample: shape (M, p+1, 3).
-    idx = k[:, None] - p + np.arange(p + 1)[None, :]
-    d = ctrl[idx].copy()
-    for r in range(1, p + 1):
-        for j in range(p, r - 1, -1):
-            i = k - p + j
-            left = knots[i]
-            right = knots[i + p + 1 - r]
-            denom = right - left
-            alpha = np.where(denom > 0.0, (u - left) / np.where(denom > 0.0, denom, 1.0), 0.0)
-            d[:, j, :] = (1.0 - alpha)[:, None] * d[:, j - 1, :] + alpha[:, None] * d[:, j, :]
-    return d[:, p, :]
 
 
 def horizon_times(t_obs_s: float, horizon_s: float, num_samples: int) -> FloatArray:

@@ -27,7 +27,8 @@ from pathlib import Path
 from quad_il.evaluation.episodes import EpisodeResult, read_episodes, read_results
 from quad_il.evaluation.metrics import summarise
 from quad_il.evaluation.stats import wilson_interval
-from quad_il.inference.safety import SafetyVerdict
+from quad_il.inference.core import VERDICT_LABELS
+from quad_il.tools.cli import HelpFormatter
 
 
 class CompareError(ValueError):
@@ -80,7 +81,7 @@ def _summary_row(
 
 
 # A decision is a network output the safety layer judged: its verdict is counted under one of these names.
-VERDICTS = tuple(v.label for v in SafetyVerdict)
+VERDICTS = VERDICT_LABELS
 
 
 def _median(values: list[float]) -> float:
@@ -111,16 +112,14 @@ def failure_modes(results: list[EpisodeResult], episodes_json: Path) -> tuple[fl
 
 
 def _round_steps(data_dir: Path) -> tuple[int, int, int]:
-    from quad_il.imitation.dataset import list_episodes, read_episode
+    from quad_il.imitation.dataset import read_records
     from quad_il.imitation.types import Controller
 
     records = expert = learner = 0
-    files, _ = list_episodes(data_dir)
-    for f in files:
-        for r in read_episode(f):
-            records += 1
-            expert += r.controller == Controller.EXPERT
-            learner += r.controller == Controller.LEARNER
+    for r in read_records(data_dir):
+        records += 1
+        expert += r.controller == Controller.EXPERT
+        learner += r.controller == Controller.LEARNER
     return records, expert, learner
 
 
@@ -235,11 +234,13 @@ def _labelled(text: str, flag: str) -> tuple[str, Path]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="quad_il.imitation.compare", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(
+        formatter_class=HelpFormatter, prog="quad_il.imitation.compare", description=__doc__.splitlines()[0]
+    )
     ap.add_argument("--run", action="append", default=[], help="NAME=manager run directory; repeat")
     ap.add_argument("--baseline", action="append", default=[], help="NAME=run_eval output directory")
-    ap.add_argument("--controller", default="cpp", help="the evaluated controller (default cpp)")
-    ap.add_argument("--out", required=True)
+    ap.add_argument("--controller", default="cpp", help="the evaluated controller")
+    ap.add_argument("--out", required=True, help="output directory")
     args = ap.parse_args(argv)
     try:
         if not args.run:

@@ -1,306 +1,299 @@
-"""On-disk format of the Python (interactive) collector: one `.npz` file per episode, written atomically.
+"""The interactive collector's demonstrations on disk: the cpp_data_collector dataset format (shards +
+manifest, docs/data_format.md), written by quad_il.data.writer, read by quad_il.data.shards and `read_dataset`
+like every other dataset of the project.
 
-A file `episode_<episode_id:06d>.npz` is written as `<name>.partial`, flushed and fsynced, then renamed; the
-directory is fsynced. A reader therefore sees complete files only; a `.partial` left by a killed collector is
-the torn tail and is reported, never read. Format version 2 (version 1 files are still read), arrays
-(N = records, K = the largest number of control points in the file, L = the largest knot count):
+A round's data directory is one dataset. Its manifest's run_info names the profile below
+(`record_profile: quad_il.imitation/1`), the round and the algorithm. A record is one imitation-learning
+Record; the fields that a planner's record spends on the planner's status and timings carry the learner's
+bookkeeping (docs/data_format.md, "Records of the interactive collector"):
 
-| key | shape, dtype | meaning |
-|---|---|---|
-| format_version | (), int64 | 2 |
-| stamp_s | (N,) float64 | observation (depth frame) stamp, s |
-| odom_stamp_s | (N,) float64 | stamp of the state's odometry (NaN: unknown; absent in version 1) |
-| frame_seq, episode_id, round_index | (N,) int64 | lockstep frame counter, episode, round |
-| p_world_body, v_world, goal_world | (N, 3) float64 | state (m, m/s), goal (m), world frame |
-| q_world_body | (N, 4) float64 | attitude quaternion (x, y, z, w) |
-| depth_m | (N, H, W) float32 | depth image in metres as published (absent: `has_depth` = 0) |
-| features | (N, F) float64 | MEGA-DAgger observation features (absent: `has_features` = 0) |
-| label_ctrl, label_knots | (N, K, 3), (N, L) float64 | the label B-spline (world frame), zero-padded |
-| label_num_ctrl | (N,) int64 | its control points (knots: label_num_ctrl + label_order + 1) |
-| label_order, label_traj_id | (N,) int64 | its degree and trajectory id |
-| label_start_time_s | (N,) float64 | its start time |
-| contrast_* | as label_*; contrast_mask (N,) bool | EIL's contrast action (zeros where the mask is False) |
-| partition, controller | (N,) int8 | PARTITION_CODES / CONTROLLER_CODES (types.py) |
-| source | (N,) unicode | "learner" or the expert's name |
-| deviation_m, score, min_clearance_m | (N,) float64 | gate deviation, MEGA score, clearance (NaN: none) |
+| field | content |
+|---|---|
+| episode_id, world_seed | the simulator's episode id and world seed |
+| sim_time_s, depth_stamp_s | the observation's (depth frame's) stamp |
+| odom_stamp_s | the stamp of the odometry the state came from (the observation's stamp when unknown) |
+| p_world_body, v_world, q_world_body, goal_world, depth_code | the observation (w_body = 0: not recorded) |
+| bspline_* , knots, ctrl_pts_world | the label (the trainer's target) |
+| plan_status_code | the partition code (0 demo, 1 intervention, 2 good, 3 bad: quad_il.data.partitions) |
+| plan_status_text | "<controller> <source>": who flew this step and whose plan the label is |
+| t_map_update_ms / t_frontend_ms / t_optimization_ms | deviation_m / score / min_clearance_m |
+| flags | bits 1 / 2 / 4: the value above is present (absent: 0 in the record, NaN when read back) |
 
-Rows may hold splines of different sizes and degrees (the expert's plans vary in length); version 1 files had
-one K and order per file.
+Not stored (no reader used them from disk): MEGA-DAgger's observation features, EIL's contrast action, the
+lockstep frame counter (a record read back has its dataset seq as frame_seq).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import os
-import zipfile
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from quad_il.imitation.bspline import SplineAction
-from quad_il.imitation.types import (
-    CONTROLLER_CODES,
-    PARTITION_CODES,
-    ImitationError,
-    Observation,
-    Record,
+from quad_il.data.format import DatasetError, NotADatasetError, decode_depth_codes, record_dtype
+from quad_il.data.partitions import PARTITION_CODES
+from quad_il.data.shards import open_dataset
+from quad_il.data.writer import (
+    DatasetWriter,
+    PlanRecordData,
+    WriterConfig,
+    encode_record,
+    layout_params,
+    load_writer_config,
+    validate,
 )
+from quad_il.imitation.bspline import SplineAction
+from quad_il.imitation.types import Controller, ImitationError, Observation, Record
+from quad_il.tools.repo import repo_path
 
-FORMAT_VERSION = 2
-READABLE_VERSIONS = (1, 2)
-PARTIAL_SUFFIX = ".partial"
-
+RECORD_PROFILE = "quad_il.imitation/1"
+FLAG_DEVIATION, FLAG_SCORE, FLAG_CLEARANCE = 1, 2, 4
 _PARTITION_BY_CODE = {v: k for k, v in PARTITION_CODES.items()}
-_CONTROLLER_BY_CODE = {v: k for k, v in CONTROLLER_CODES.items()}
+_CONTROLLERS = {c.value: c for c in Controller}
 
 
-class DatasetError(ValueError):
-    """A dataset file or directory is malformed; the message names the file and the field."""
+def plan_record(r: Record, world_seed: int) -> PlanRecordData:
+    """One imitation Record as a dataset record (the table above)."""
+    o, a = r.obs, r.label
+    if o.depth_m is None:
+        raise ImitationError(f"record at {o.stamp_s:.3f} s has no depth image: a dataset record needs one")
+    extras = (r.deviation_m, r.score, r.min_clearance_m)
+    flags = sum(bit for bit, v in zip((FLAG_DEVIATION, FLAG_SCORE, FLAG_CLEARANCE), extras, strict=True)
+                if math.isfinite(v))  # fmt: skip
+    return PlanRecordData(
+        episode_id=o.episode_id,
+        world_seed=int(world_seed),
+        sim_time_s=o.stamp_s,
+        depth_m=o.depth_m,
+        depth_stamp_s=o.stamp_s,
+        odom_stamp_s=o.odom_stamp_s if math.isfinite(o.odom_stamp_s) else o.stamp_s,
+        p_world_body=o.p_world_body,
+        v_world=o.v_world,
+        q_world_body=o.q_world_body,
+        w_body=(0.0, 0.0, 0.0),
+        goal_world=o.goal_world,
+        order=a.order,
+        traj_id=a.traj_id,
+        start_time_s=a.start_time_s,
+        knots=a.knots,
+        ctrl_pts_world=a.ctrl_pts_world,
+        status_code=PARTITION_CODES[r.partition],
+        status_text=f"{r.controller.value} {r.source}",
+        timings_ms=(*(v if math.isfinite(v) else 0.0 for v in extras), 0.0),  # type: ignore[arg-type]
+        flags=flags,
+    )
 
 
-def episode_filename(episode_id: int) -> str:
-    return f"episode_{episode_id:06d}.npz"
+def default_writer_config(
+    output_dir: str | Path, image_hw: tuple[int, int], **replace: object
+) -> WriterConfig:
+    """config/collector.yaml (the project's one writer config) for a round's data directory."""
+    h, w = image_hw
+    return load_writer_config(
+        repo_path("config", "collector.yaml"),
+        output_dir=str(output_dir),
+        image_width=int(w),
+        image_height=int(h),
+        **replace,
+    )
 
 
-def _fsync_dir(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
+class EpisodeWriter:
+    """The collector's writer of one round's dataset: episodes appended as they end, fsynced each time.
+
+    The dataset (and its manifest) is created at the first episode with records, when the image size is
+    known; a round without records leaves no dataset. `writer_config` replaces keys of config/collector.yaml
+    (camera intrinsics from camera_info, software_commit)."""
+
+    def __init__(self, directory: str | Path, run_info: dict[str, str], **writer_config: object) -> None:
+        self.directory = Path(directory)
+        self.run_info = {"record_profile": RECORD_PROFILE, **run_info}
+        self.writer_config = writer_config
+        self.writer: DatasetWriter | None = None
+        self.written = 0
+        self.rejected: list[str] = []
+
+    def write(self, world_seed: int, records: Sequence[Record], **writer_config: object) -> int:
+        """Appends an episode's records; returns how many were written (invalid ones are counted in the
+        manifest and kept in `rejected`). ImitationError when the writer failed (disk full: the error
+        names the file)."""
+        if not records:
+            return 0
+        plans = [plan_record(r, world_seed) for r in records]  # ImitationError for a record without depth
+        if self.writer is None:
+            shape = np.shape(plans[0].depth_m)
+            cfg = default_writer_config(self.directory, shape, **{**self.writer_config, **writer_config})
+            self.writer = DatasetWriter(cfg, self.run_info)
+        n = 0
+        for r, plan in zip(records, plans, strict=True):
+            status, detail = self.writer.record(plan)
+            if status == "queued":
+                n += 1
+            elif status == "rejected":
+                self.rejected.append(f"record at {r.obs.stamp_s:.3f} s: {detail}")
+            else:
+                self.written += n
+                raise ImitationError(f"dataset writer failed: {detail}")
+        self.writer.flush()
+        self.written += n
+        if self.writer.error:
+            raise ImitationError(f"dataset writer failed: {self.writer.error}")
+        return n
+
+    def finalize(self) -> bool:
+        return self.writer.finalize() if self.writer is not None else True
 
 
-def _spline_arrays(actions: Sequence[SplineAction | None], prefix: str) -> dict[str, np.ndarray]:
-    present = [a for a in actions if a is not None]
-    if not present:
-        return {}
-    k = max(a.num_ctrl for a in present)
-    nk = max(a.knots.shape[0] for a in present)
-    n = len(actions)
-    ctrl = np.zeros((n, k, 3))
-    knots = np.zeros((n, nk))
-    num = np.zeros(n, dtype=np.int64)
-    order = np.zeros(n, dtype=np.int64)
-    start = np.zeros(n)
-    traj = np.zeros(n, dtype=np.int64)
-    for i, a in enumerate(actions):
-        if a is None:
-            continue
-        ctrl[i, : a.num_ctrl] = a.ctrl_pts_world
-        knots[i, : a.knots.shape[0]] = a.knots
-        num[i], order[i], start[i], traj[i] = a.num_ctrl, a.order, a.start_time_s, a.traj_id
-    return {
-        f"{prefix}_ctrl": ctrl,
-        f"{prefix}_knots": knots,
-        f"{prefix}_num_ctrl": num,
-        f"{prefix}_order": order,
-        f"{prefix}_start_time_s": start,
-        f"{prefix}_traj_id": traj,
-    }
-
-
-def records_to_arrays(records: Sequence[Record]) -> dict[str, np.ndarray]:
+def write_dataset(
+    directory: str | Path, records: Sequence[Record], *, world_seed: int = 0, round_index: int | None = None
+) -> Path:
+    """A complete dataset of `records` in one call (tools and tests); ImitationError if one is invalid."""
     if not records:
         raise ImitationError("no records to write")
-    obs = [r.obs for r in records]
-    has_depth = all(o.depth_m is not None for o in obs)
-    if not has_depth and any(o.depth_m is not None for o in obs):
-        raise ImitationError("either every record of an episode has a depth image or none has")
-    has_features = all(o.features is not None for o in obs)
-    out: dict[str, np.ndarray] = {
-        "format_version": np.array(FORMAT_VERSION, dtype=np.int64),
-        "stamp_s": np.array([o.stamp_s for o in obs]),
-        "odom_stamp_s": np.array([o.odom_stamp_s for o in obs]),
-        "frame_seq": np.array([o.frame_seq for o in obs], dtype=np.int64),
-        "episode_id": np.array([o.episode_id for o in obs], dtype=np.int64),
-        "round_index": np.array([r.round_index for r in records], dtype=np.int64),
-        "p_world_body": np.stack([o.p_world_body for o in obs]),
-        "v_world": np.stack([o.v_world for o in obs]),
-        "q_world_body": np.stack([o.q_world_body for o in obs]),
-        "goal_world": np.stack([o.goal_world for o in obs]),
-        "has_depth": np.array(int(has_depth), dtype=np.int64),
-        "has_features": np.array(int(has_features), dtype=np.int64),
-        "partition": np.array([PARTITION_CODES[r.partition] for r in records], dtype=np.int8),
-        "controller": np.array([CONTROLLER_CODES[r.controller] for r in records], dtype=np.int8),
-        "source": np.array([r.source for r in records], dtype=np.str_),
-        "deviation_m": np.array([r.deviation_m for r in records]),
-        "score": np.array([r.score for r in records]),
-        "min_clearance_m": np.array([r.min_clearance_m for r in records]),
-        "contrast_mask": np.array([r.contrast is not None for r in records], dtype=bool),
-    }
-    if has_depth:
-        shapes = {o.depth_m.shape for o in obs if o.depth_m is not None}
-        if len(shapes) != 1:
-            raise ImitationError(f"depth images of one episode must share a size, got {sorted(shapes)}")
-        out["depth_m"] = np.stack([o.depth_m for o in obs if o.depth_m is not None]).astype(np.float32)
-    if has_features:
-        dims = {o.features.shape for o in obs if o.features is not None}
-        if len(dims) != 1:
-            raise ImitationError(f"observation features of one episode must share a size, got {sorted(dims)}")
-        out["features"] = np.stack([o.features for o in obs if o.features is not None])
-    out.update(_spline_arrays([r.label for r in records], "label"))
-    out.update(_spline_arrays([r.contrast for r in records], "contrast"))
+    rounds = {r.round_index for r in records}
+    info = {"round_index": str(round_index if round_index is not None else min(rounds))}
+    w = EpisodeWriter(directory, info, fsync=False)
+    w.write(world_seed, records)
+    if w.rejected:
+        raise ImitationError(f"{directory}: {w.rejected[0]}")
+    w.finalize()
+    return Path(directory)
+
+
+def shard_records(records: Sequence[Record], world_seed: int = 0) -> np.ndarray:
+    """Records as an in-memory array of dataset records (what a round's dataset would hold), for the
+    conversion of records that were never written."""
+    if not records:
+        raise ImitationError("no records")
+    if any(r.obs.depth_m is None for r in records):
+        raise ImitationError("records without depth images cannot be written or trained on")
+    shapes = {r.obs.depth_m.shape for r in records}  # type: ignore[union-attr]
+    if len(shapes) != 1:
+        raise ImitationError(f"depth images of different sizes: {sorted(shapes)}")
+    cfg = default_writer_config(os.devnull, shapes.pop())
+    dtype = record_dtype(*layout_params(cfg))
+    out = np.zeros(len(records), dtype=dtype)
+    for i, r in enumerate(records):
+        pr = plan_record(r, world_seed)
+        why = validate(pr, cfg)
+        if why:
+            raise ImitationError(f"record {i}: {why}")
+        out[i : i + 1] = np.frombuffer(encode_record(pr, i, dtype), dtype=dtype)
     return out
 
 
-def write_episode(directory: str | Path, episode_id: int, records: Sequence[Record]) -> Path:
-    """Atomically write one episode's records; returns the final path. Refuses to overwrite."""
-    d = Path(directory)
-    d.mkdir(parents=True, exist_ok=True)
-    final = d / episode_filename(episode_id)
-    if final.exists():
-        raise DatasetError(f"{final} already exists; episodes are written once")
-    arrays = records_to_arrays(records)
-    partial = final.with_name(final.name + PARTIAL_SUFFIX)
-    try:
-        with open(partial, "wb") as fh:
-            np.savez(fh, **arrays)
-            fh.flush()
-            os.fsync(fh.fileno())
-    except OSError as e:
-        # Disk full (ENOSPC, or EFBIG past RLIMIT_FSIZE) or an I/O error: the torn file is removed (it
-        # would only ever be reported as a leftover .partial) and the error names the file; episodes
-        # written before stay complete.
-        partial.unlink(missing_ok=True)
-        raise DatasetError(
-            f"cannot write episode {episode_id} to {partial}: {e.strerror or e}; the partial file was "
-            "removed, earlier episodes are complete"
-        ) from None
-    os.replace(partial, final)
-    _fsync_dir(d)
-    return final
+@dataclasses.dataclass(frozen=True)
+class RoundData:
+    """The valid records of one round's dataset (shard records, seq order) and its round index."""
+
+    path: Path
+    round_index: int
+    records: np.ndarray
+    manifest: dict[str, Any] | None
 
 
-def _get(data: np.lib.npyio.NpzFile, path: Path, key: str) -> np.ndarray:
-    if key not in data.files:
-        raise DatasetError(f"{path}: missing field '{key}'")
-    try:
-        return data[key]
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
-        raise DatasetError(f"{path}: field '{key}' is unreadable: {e}") from None
-
-
-def _splines(
-    data: np.lib.npyio.NpzFile, path: Path, prefix: str, mask: np.ndarray, version: int
-) -> list[SplineAction | None]:
-    if not mask.any():
-        return [None] * mask.shape[0]
-    ctrl = _get(data, path, f"{prefix}_ctrl")
-    knots = _get(data, path, f"{prefix}_knots")
-    order = _get(data, path, f"{prefix}_order")
-    start = _get(data, path, f"{prefix}_start_time_s")
-    traj = _get(data, path, f"{prefix}_traj_id")
-    if version >= 2:
-        num = _get(data, path, f"{prefix}_num_ctrl")
-    else:
-        num = np.full(mask.shape[0], ctrl.shape[1], dtype=np.int64)
-    out: list[SplineAction | None] = []
-    for i in range(mask.shape[0]):
-        if not mask[i]:
-            out.append(None)
-            continue
-        k, p = int(num[i]), int(order[i])
-        if not 0 < k <= ctrl.shape[1] or k + p + 1 > knots.shape[1]:
-            raise DatasetError(
-                f"{path}: record {i}: {prefix}_num_ctrl {k} with order {p} does not fit the arrays "
-                f"({ctrl.shape[1]} control points, {knots.shape[1]} knots)"
-            )
-        try:
-            out.append(SplineAction(ctrl[i, :k], knots[i, : k + p + 1], p, float(start[i]), int(traj[i])))
-        except ValueError as e:
-            raise DatasetError(f"{path}: record {i}: bad {prefix} B-spline: {e}") from None
-    return out
-
-
-def read_episode(path: str | Path) -> list[Record]:
-    p = Path(path)
-    if p.name.endswith(PARTIAL_SUFFIX):
-        raise DatasetError(f"{p} is an incomplete (.partial) file")
-    if not p.is_file():
-        raise DatasetError(f"{p}: no such file")
-    try:
-        data = np.load(p, allow_pickle=False)
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
-        raise DatasetError(f"{p}: not a readable .npz file: {e}") from None
-    with data:
-        version = int(_get(data, p, "format_version"))
-        if version not in READABLE_VERSIONS:
-            raise DatasetError(
-                f"{p}: format_version {version}, this reader understands {list(READABLE_VERSIONS)}"
-            )
-        stamp = _get(data, p, "stamp_s")
-        n = stamp.shape[0]
-        fields = {
-            k: _get(data, p, k)
-            for k in (
-                "frame_seq",
-                "episode_id",
-                "round_index",
-                "p_world_body",
-                "v_world",
-                "q_world_body",
-                "goal_world",
-                "partition",
-                "controller",
-                "source",
-                "deviation_m",
-                "score",
-                "min_clearance_m",
-                "contrast_mask",
-            )
-        }
-        for k, v in fields.items():
-            if v.shape[0] != n:
-                raise DatasetError(f"{p}: field '{k}' has {v.shape[0]} rows, stamp_s has {n}")
-        depth = _get(data, p, "depth_m") if int(_get(data, p, "has_depth")) else None
-        feats = _get(data, p, "features") if int(_get(data, p, "has_features")) else None
-        odom_stamp = _get(data, p, "odom_stamp_s") if version >= 2 else np.full(n, np.nan)
-        labels = _splines(data, p, "label", np.ones(n, dtype=bool), version)
-        contrasts = _splines(data, p, "contrast", fields["contrast_mask"].astype(bool), version)
-        records: list[Record] = []
-        for i in range(n):
-            try:
-                obs = Observation(
-                    stamp_s=float(stamp[i]),
-                    frame_seq=int(fields["frame_seq"][i]),
-                    episode_id=int(fields["episode_id"][i]),
-                    p_world_body=fields["p_world_body"][i],
-                    v_world=fields["v_world"][i],
-                    q_world_body=fields["q_world_body"][i],
-                    goal_world=fields["goal_world"][i],
-                    depth_m=None if depth is None else depth[i],
-                    features=None if feats is None else feats[i],
-                    odom_stamp_s=float(odom_stamp[i]),
-                )
-                partition = _PARTITION_BY_CODE[int(fields["partition"][i])]
-                controller = _CONTROLLER_BY_CODE[int(fields["controller"][i])]
-            except (ValueError, KeyError) as e:
-                raise DatasetError(f"{p}: record {i}: {e}") from None
-            label = labels[i]
-            if label is None:
-                raise DatasetError(f"{p}: record {i} has no label")
-            records.append(
-                Record(
-                    obs=obs,
-                    label=label,
-                    partition=partition,
-                    source=str(fields["source"][i]),
-                    controller=controller,
-                    round_index=int(fields["round_index"][i]),
-                    deviation_m=float(fields["deviation_m"][i]),
-                    contrast=contrasts[i],
-                    score=float(fields["score"][i]),
-                    min_clearance_m=float(fields["min_clearance_m"][i]),
-                )
-            )
-    return records
-
-
-def list_episodes(directory: str | Path) -> tuple[list[Path], list[Path]]:
-    """(complete episode files sorted by name, leftover .partial files) of a data directory."""
+def read_round(directory: str | Path) -> RoundData | None:
+    """A round's dataset (verified: a CRC mismatch or a torn completed shard is an error; a killed writer's
+    torn tail is skipped); None for a directory without a dataset (a round that recorded nothing)."""
     d = Path(directory)
     if not d.is_dir():
-        raise DatasetError(f"{d}: not a directory")
-    complete = sorted(d.glob("episode_*.npz"))
-    partial = sorted(d.glob("episode_*.npz" + PARTIAL_SUFFIX))
-    return complete, partial
+        raise NotADatasetError(f"{d}: not a directory")
+    try:
+        ds = open_dataset(d)
+    except NotADatasetError:
+        names = [p.name for p in d.iterdir()]
+        if any(n.startswith(("shard_", "manifest")) for n in names):
+            raise
+        if any(n.startswith("episode_") and n.endswith(".npz") for n in names):
+            raise NotADatasetError(
+                f"{d}: holds episode_*.npz files of the interactive collector's former format (removed in "
+                "issue 31); collect the round again"
+            ) from None
+        return None
+    info = (ds.manifest or {}).get("run_info") or {}
+    if info.get("record_profile") != RECORD_PROFILE:
+        raise DatasetError(
+            f"{d}: not an interactive collector's dataset (run_info.record_profile is "
+            f"{info.get('record_profile')!r}, expected {RECORD_PROFILE!r})"
+        )
+    try:
+        round_index = int(info["round_index"])
+    except (KeyError, ValueError):
+        raise DatasetError(f"{d}: run_info.round_index is missing or not an integer") from None
+    chunks = [records for _, records, _ in ds.valid_record_arrays()]
+    # Copied into an array of the shards' own dtype (np.concatenate would pack the structured dtype, moving
+    # the CRC off its offset in the raw bytes).
+    dtype = ds.shards[0].dtype if ds.shards else np.dtype([])
+    records = np.zeros(sum(len(c) for c in chunks), dtype=dtype)
+    start = 0
+    for c in chunks:
+        records[start : start + len(c)] = c
+        start += len(c)
+    return RoundData(d, round_index, records, ds.manifest)
+
+
+def to_records(data: RoundData) -> list[Record]:
+    """Dataset records back into Records (what was stored: the table above)."""
+    out = []
+    for rec in data.records:
+        n, k = int(rec["num_ctrl_pts"]), int(rec["num_knots"])
+        controller, _, source = bytes(rec["plan_status_text"]).rstrip(b"\0").decode("utf-8").partition(" ")
+        flags = int(rec["flags"])
+        t = (float(rec["t_map_update_ms"]), float(rec["t_frontend_ms"]), float(rec["t_optimization_ms"]))
+        extras = [v if flags & bit else math.nan for bit, v in zip((1, 2, 4), t, strict=True)]
+        where = f"{data.path} record seq {int(rec['seq'])}"
+        try:
+            obs = Observation(
+                stamp_s=float(rec["depth_stamp_s"]),
+                frame_seq=int(rec["seq"]),
+                episode_id=int(rec["episode_id"]),
+                p_world_body=rec["p_world_body"],
+                v_world=rec["v_world"],
+                q_world_body=rec["q_world_body"],
+                goal_world=rec["goal_world"],
+                depth_m=decode_depth_codes(rec["depth_code"]),
+                odom_stamp_s=float(rec["odom_stamp_s"]),
+            )
+            label = SplineAction(
+                rec["ctrl_pts_world"][:n],
+                rec["knots"][:k],
+                int(rec["bspline_order"]),
+                float(rec["bspline_start_time_s"]),
+                int(rec["bspline_traj_id"]),
+            )
+            partition = _PARTITION_BY_CODE[int(rec["plan_status_code"])]
+            ctrl = _CONTROLLERS[controller]
+        except (ValueError, KeyError) as e:
+            raise DatasetError(f"{where}: not an interactive collector's record: {e}") from None
+        out.append(
+            Record(
+                obs=obs,
+                label=label,
+                partition=partition,
+                source=source,
+                controller=ctrl,
+                round_index=data.round_index,
+                deviation_m=extras[0],
+                score=extras[1],
+                min_clearance_m=extras[2],
+            )
+        )
+    return out
+
+
+def read_records(directory: str | Path) -> list[Record]:
+    """Every valid record of a round's dataset ([] without a dataset)."""
+    data = read_round(directory)
+    return [] if data is None else to_records(data)
+
+
+def episodes(records: Sequence[Record]) -> list[list[Record]]:
+    """Records grouped by episode, in order of first appearance."""
+    groups: dict[int, list[Record]] = {}
+    for r in records:
+        groups.setdefault(r.obs.episode_id, []).append(r)
+    return list(groups.values())

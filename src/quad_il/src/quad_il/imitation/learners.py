@@ -62,7 +62,7 @@ from quad_il.imitation.types import (
     Partition,
     Record,
 )
-from quad_il.inference.trajectory import braking_trajectory
+from quad_il.inference.core import braking_trajectory
 
 
 class ImitationLearnerBase(abc.ABC):

@@ -7,6 +7,9 @@ same stamp have arrived, in any order. A source that could not plan publishes no
 `flush_before` completes such pairs with `None` once a newer frame has been fully paired (the simulator does
 not advance past a frame until every consumer acknowledged it, so a missing plan never arrives later).
 Bounded: at most `max_pending` stamps are held; the oldest is evicted (and counted) beyond that.
+
+This pairs plans with frames by equal stamps. The other pairing, of a frame with its odometry (stamp in
+(t - period, t]), is `quad_il.frame_pairing`, the one Python home of that rule.
 """
 
 from __future__ import annotations

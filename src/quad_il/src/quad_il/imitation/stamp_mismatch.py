@@ -24,7 +24,7 @@ share above one odometry period) and DIR/stamp_mismatch.png (histograms), and pr
 
 `train-compare` (the second half of the thesis's comparison) trains the same network on an equal number of
 records from each collector (the same flights; the episode of the last flown world held out), then evaluates
-both policies on the held-out episode as recorded by each collector (training_only/evaluate_policy.py),
+both policies on the held-out episode as recorded by each collector (quad_il.learning.evaluation),
 writing DIR/<condition>/train_compare.md.
 """
 
@@ -42,6 +42,9 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from quad_il.tools.cli import HelpFormatter
+from quad_il.tools.repo import repo_path
 
 ODOM_PERIOD_MS = 5.0
 
@@ -137,10 +140,10 @@ def cpp_mismatch_ms(d: Path) -> np.ndarray:
 
 def py_mismatch_ms(work: Path) -> tuple[np.ndarray, np.ndarray]:
     """(attached odometry, newest received odometry) mismatches of the frames the Python collector paired."""
-    from quad_il.imitation.dataset import list_episodes, read_episode
+    from quad_il.imitation.dataset import read_round
 
-    files, _ = list_episodes(work / "py")
-    paired = {round(r.obs.stamp_s * 1e9) for f in files for r in read_episode(f)}
+    data = read_round(work / "py")
+    paired = set() if data is None else {round(t * 1e9) for t in data.records["depth_stamp_s"].tolist()}
     used, latest = [], []
     with open(work / "py_timing.csv") as fh:
         for row in csv.DictReader(fh):
@@ -226,7 +229,7 @@ def report(out: Path) -> int:
 
 def train_compare(out: Path, cond: str, epochs: int, size: int) -> None:
     from quad_il.data.postprocess import NPZ_ARRAYS, FixedSizeArrays
-    from quad_il.imitation.convert import collect_records, records_to_npz_arrays
+    from quad_il.imitation.convert import select_records, shard_records_to_npz_arrays
     from quad_il.learning.dataset import shard_dir_arrays
 
     work = out / cond
@@ -239,13 +242,9 @@ def train_compare(out: Path, cond: str, epochs: int, size: int) -> None:
         horizon_s=float(cpp["horizon_s"]),
         format_version=int(cpp["format_version"]),
     )
-    records, _ = collect_records([work / "py"])
-    py = records_to_npz_arrays(records)
-    # The Python files do not hold the world seed: take it from the C++ records of the same episode.
-    seed_of = dict(zip(cpp_fixed.episode_id.tolist(), cpp_fixed.world_seed.tolist(), strict=False))
-    py = dataclasses.replace(
-        py, world_seed=np.array([seed_of[int(e)] for e in py.episode_id], dtype=np.uint64)
-    )
+    records, rounds, _ = select_records([work / "py"])
+    py = shard_records_to_npz_arrays(records, rounds)
+    py = dataclasses.replace(py, world_seed=np.asarray(records["world_seed"], dtype=np.uint64))
     held = int(max(set(py.episode_id.tolist()) & set(cpp_fixed.episode_id.tolist())))
     rng = np.random.default_rng(0)
 
@@ -266,53 +265,31 @@ def train_compare(out: Path, cond: str, epochs: int, size: int) -> None:
         "cpp": subset(cpp_fixed, cpp_fixed.episode_id == held).save(cmp_dir / "heldout_cpp.npz"),
         "py": subset(py, py.episode_id == held).save(cmp_dir / "heldout_py.npz"),
     }
-    root = Path(os.environ.get("QUAD_IL_ROOT") or Path(__file__).resolve().parents[5])
+    # In this process, through the functions the two training_only/ commands call (issue 31).
+    from quad_il.learning.evaluation import evaluate
+    from quad_il.learning.train import train
+
     rows = []
     for name, f in files.items():
         run = cmp_dir / f"run_{name}"
         if not (run / "policy.ts").is_file():
-            subprocess.run(
+            train(
+                [repo_path("config", "train.yaml")],
                 [
-                    sys.executable,
-                    str(root / "training_only" / "train_on_cpp_datasets.py"),
-                    "--config",
-                    str(root / "config" / "train.yaml"),
-                    "--data",
-                    str(f),
-                    "--out",
-                    str(cmp_dir),
-                    "--name",
-                    f"run_{name}",
-                    "--set",
+                    "data.paths=[" + repr(str(Path(f).resolve())) + "]",
                     f"optim.epochs={epochs}",
-                    "--set",
                     "model.input_height=32",
-                    "--set",
                     "model.input_width=32",
-                    "--set",
                     "run.num_threads=2",
-                    "--set",
                     "data.num_workers=0",
+                    f"run.out_dir={str(cmp_dir)!r}",
+                    f"run.name={'run_' + name!r}",
                 ],
-                check=True,
             )
         summary = json.loads((run / "summary.json").read_text())
         for hname, h in heldout.items():
             ev = cmp_dir / f"eval_{name}_on_{hname}"
-            subprocess.run(
-                [
-                    sys.executable,
-                    str(root / "training_only" / "evaluate_policy.py"),
-                    "--policy",
-                    str(run / "policy.ts"),
-                    "--data",
-                    str(h),
-                    "--out",
-                    str(ev),
-                ],
-                check=True,
-                stdout=subprocess.DEVNULL,
-            )
+            evaluate(run / "policy.ts", [h], ev)
             js = json.loads((ev / "summary.json").read_text())
             rows.append((name, hname, summary, js))
     lines = [
@@ -335,19 +312,25 @@ def train_compare(out: Path, cond: str, epochs: int, size: int) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="quad_il.imitation.stamp_mismatch", description=__doc__.splitlines()[0])
-    ap.add_argument("cmd", choices=["run", "report", "train-compare"])
-    ap.add_argument("--epochs", type=int, default=5)
+    ap = argparse.ArgumentParser(
+        formatter_class=HelpFormatter,
+        prog="quad_il.imitation.stamp_mismatch",
+        description=__doc__.splitlines()[0],
+    )
+    ap.add_argument("cmd", choices=["run", "report", "train-compare"], help="what to do (see above)")
+    ap.add_argument("--epochs", type=int, default=5, help="train-compare: training epochs")
     ap.add_argument(
         "--size", type=int, default=0, help="training records per collector (0: as many as both have)"
     )
-    ap.add_argument("--out", required=True)
-    ap.add_argument("--episodes", type=int, default=2)
-    ap.add_argument("--episode-timeout-s", type=float, default=15.0)
-    ap.add_argument("--load-procs", type=int, default=3)
-    ap.add_argument("--port", type=int, default=11571)
-    ap.add_argument("--wall-timeout-s", type=float, default=300.0)
-    ap.add_argument("--conditions", default="idle,loaded")
+    ap.add_argument("--out", required=True, help="work directory")
+    ap.add_argument("--episodes", type=int, default=2, help="run: episodes per condition")
+    ap.add_argument("--episode-timeout-s", type=float, default=15.0, help="run: sim time per episode")
+    ap.add_argument(
+        "--load-procs", type=int, default=3, help="run: busy-loop processes of the loaded condition"
+    )
+    ap.add_argument("--port", type=int, default=11571, help="run: ROS master port")
+    ap.add_argument("--wall-timeout-s", type=float, default=300.0, help="run: wall time per condition")
+    ap.add_argument("--conditions", default="idle,loaded", help="comma-separated conditions")
     args = ap.parse_args(argv)
     out = Path(args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)

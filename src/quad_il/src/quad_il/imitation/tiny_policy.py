@@ -12,26 +12,28 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import os
 import sys
 from pathlib import Path
 
 import yaml
 
+from quad_il.tools.cli import HelpFormatter
+from quad_il.tools.repo import repo_path
+
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="quad_il.imitation.tiny_policy")
+    ap = argparse.ArgumentParser(formatter_class=HelpFormatter, prog="quad_il.imitation.tiny_policy")
     sub = ap.add_subparsers(dest="cmd", required=True)
-    a = sub.add_parser("policy")
-    a.add_argument("dir")
-    a.add_argument("--size", type=int, default=32)
-    a.add_argument("--seed", type=int, default=0)
-    b = sub.add_parser("round-config")
-    b.add_argument("dir")
-    b.add_argument("--algorithm", default="dagger")
-    b.add_argument("--beta", type=float, default=0.0)
-    b.add_argument("--round", type=int, default=1)
-    b.add_argument("--seed", type=int, default=0)
+    a = sub.add_parser("policy", formatter_class=HelpFormatter)
+    a.add_argument("dir", help="output directory")
+    a.add_argument("--size", type=int, default=32, help="input height and width (px)")
+    a.add_argument("--seed", type=int, default=0, help="weight initialisation seed")
+    b = sub.add_parser("round-config", formatter_class=HelpFormatter)
+    b.add_argument("dir", help="output directory")
+    b.add_argument("--algorithm", default="dagger", help="algorithm name")
+    b.add_argument("--beta", type=float, default=0.0, help="DAgger's constant beta")
+    b.add_argument("--round", type=int, default=1, help="round index")
+    b.add_argument("--seed", type=int, default=0, help="round seed")
     args = ap.parse_args(argv)
     d = Path(args.dir)
     d.mkdir(parents=True, exist_ok=True)
@@ -39,9 +41,8 @@ def main(argv: list[str] | None = None) -> int:
         from quad_il.inference.random_policy import export_random_policy
         from quad_il.learning.config import load_config
 
-        root = Path(os.environ.get("QUAD_IL_ROOT") or Path(__file__).resolve().parents[5])
         cfg = load_config(
-            [str(root / "config" / "train.yaml")],
+            [str(repo_path("config", "train.yaml"))],
             [f"model.input_height={args.size}", f"model.input_width={args.size}"],
         )
         with contextlib.redirect_stdout(sys.stderr):

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from quad_il.data.partitions import Partition
 from quad_il.imitation.bspline import SplineAction
 
 FloatArray = NDArray[np.float64]
@@ -31,24 +32,6 @@ class Controller(enum.Enum):
     NONE = "none"  # neither has a usable plan: the tracker holds the previous one
 
 
-class Partition(enum.Enum):
-    """What a record means to the trainer (EIL's partitions; BC/DAgger/HG-DAgger use DEMO or INTERVENTION)."""
-
-    DEMO = "demo"  # expert label on a state (BC, DAgger): plain regression target
-    INTERVENTION = "intervention"  # expert in control, expert label (HG-DAgger, EIL, MEGA-DAgger)
-    GOOD = "good"  # learner in control, no intervention followed: the learner's action was good enough (EIL)
-    BAD = "bad"  # learner in control just before an intervention: the learner's action was bad (EIL)
-
-
-PARTITION_CODES: dict[Partition, int] = {
-    Partition.DEMO: 0,
-    Partition.INTERVENTION: 1,
-    Partition.GOOD: 2,
-    Partition.BAD: 3,
-}
-# The npz array (quad_il.imitation.convert) holding each row's PARTITION_CODES value; rows of files without it
-# (the C++ collector's) are DEMO.
-IL_PARTITION_KEY = "il_partition"
 CONTROLLER_CODES: dict[Controller, int] = {Controller.EXPERT: 0, Controller.LEARNER: 1, Controller.NONE: 2}
 
 

@@ -1,7 +1,10 @@
 """Launch prefix that starts a command once enough peers are registered with the ROS master.
 
-    python -P src/quad_il/src/quad_il/imitation/wait_peers.py --publishers /sim/frame_ack=4 \
-        --subscribers /camera/depth/image=3 [--timeout-s 120] -- COMMAND ARGS...
+    python -P src/quad_il/src/quad_il/imitation/wait_peers.py --publishers sim/frame_ack=4 \
+        --subscribers camera/depth/image=3 [--timeout-s 120] -- COMMAND ARGS...
+
+Relative topic names resolve in the namespace of the command (ROS_NAMESPACE, which roslaunch sets for a node
+in a namespace and hands to its launch-prefix), as the command's own relative names do.
 
 il_sim.launch starts the lockstep simulator through it: quad_sim waits for *one* depth consumer before its
 first frame, so with several consumers (labeller, policy, collector, episode manager) a late one would miss
@@ -21,14 +24,21 @@ import sys
 import time
 
 
-def parse_counts(items: list[str], flag: str) -> dict[str, int]:
+def resolve_topic(topic: str, namespace: str) -> str:
+    """A global name unchanged; a relative one joined to `namespace` ('/' or '/a/b')."""
+    if topic.startswith("/"):
+        return topic
+    return namespace.rstrip("/") + "/" + topic
+
+
+def parse_counts(items: list[str], flag: str, namespace: str = "/") -> dict[str, int]:
     out: dict[str, int] = {}
     for item in items:
         topic, sep, n = item.partition("=")
-        if not sep or not topic.startswith("/"):
-            raise ValueError(f"{flag} {item!r}: expected /topic=COUNT")
+        if not sep or not topic.strip("/") or topic.startswith("~"):
+            raise ValueError(f"{flag} {item!r}: expected topic=COUNT (a global or relative topic name)")
         try:
-            out[topic] = int(n)
+            out[resolve_topic(topic, namespace)] = int(n)
         except ValueError:
             raise ValueError(f"{flag} {item!r}: COUNT must be an integer") from None
     return out
@@ -49,22 +59,29 @@ def missing_peers(
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    if "--" not in argv:
+    if "--" not in argv and not {"-h", "--help"} & set(argv):
         print("wait_peers: usage: ... -- COMMAND [ARGS...]", file=sys.stderr)
         return 2
-    i = argv.index("--")
-    ap = argparse.ArgumentParser(prog="quad_il.imitation.wait_peers", description=__doc__.splitlines()[0])
-    ap.add_argument("--publishers", action="append", default=[])
-    ap.add_argument("--subscribers", action="append", default=[])
-    ap.add_argument("--timeout-s", type=float, default=120.0)
+    i = argv.index("--") if "--" in argv else len(argv)  # no `--`: only --help gets here
+    ap = argparse.ArgumentParser(
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        prog="quad_il.imitation.wait_peers",
+        description=__doc__.splitlines()[0],
+    )
+    ap.add_argument("--publishers", action="append", default=[], help="TOPIC=N: wait for N publishers")
+    ap.add_argument("--subscribers", action="append", default=[], help="TOPIC=N: wait for N subscribers")
+    ap.add_argument("--timeout-s", type=float, default=120.0, help="wall time before starting anyway")
     args = ap.parse_args(argv[:i])
     command = argv[i + 1 :]
     if not command:
         print("wait_peers: no command after --", file=sys.stderr)
         return 2
+    namespace = os.environ.get("ROS_NAMESPACE", "") or "/"
+    if not namespace.startswith("/"):
+        namespace = "/" + namespace
     try:
-        pubs = parse_counts(args.publishers, "--publishers")
-        subs = parse_counts(args.subscribers, "--subscribers")
+        pubs = parse_counts(args.publishers, "--publishers", namespace)
+        subs = parse_counts(args.subscribers, "--subscribers", namespace)
     except ValueError as e:
         print(f"wait_peers: {e}", file=sys.stderr)
         return 2

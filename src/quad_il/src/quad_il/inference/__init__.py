@@ -1,7 +1,5 @@
-"""Inference of the learned policy (issue 8): the Python twin of the C++ package quad_policy.
-
-`config` (config/policy.yaml), `meta` (the exported file's interface parameters), `preprocessing` (the
-training preprocessing built from those parameters), `policy` (the TorchScript file), `trajectory` (uniform
-cubic B-splines, the stopping trajectory), `safety` (the safety layer), `decider` (one decision), `fixture`
-(recorded inputs on disk), `ros_node` (the rospy node), `bench` (the Python side of `make bench-inference`).
-docs/inference.md."""
+"""Inference of the learned policy (issues 8, 31): the Python node around the C++ core quad_policy, bound as
+`core`. Python keeps only the network's preprocessing and forward pass (`policy`); `config` loads
+config/policy.yaml with the C++ loader; `fixture` (recorded inputs on disk), `messages` (ROS message
+conversion), `ros_node` (the rospy node), `bench` (the Python side of `make bench-inference`),
+`random_policy` (test policies). docs/inference.md."""

@@ -1,7 +1,7 @@
 """Python side of `make bench-inference` (scripts/bench/inference.sh): decision latency of the Python pipeline
-(preprocessing + forward + decoding + quad_msgs/Bspline construction) on the frames of a DecisionFixture, the
-same frames the C++ side times. Prints `BENCH infer_py_ms_median` and `BENCH infer_py_ms_p99`; details on
-stderr.
+(preprocessing + forward in torch, the bound C++ decoding, the quad_msgs/Bspline) on the frames of a
+DecisionFixture, the same frames the C++ side times. Prints `BENCH infer_py_ms_median` and
+`BENCH infer_py_ms_p99`; details on stderr.
 
     python -m quad_il.inference.bench --policy P --fixture DIR --config config/policy.yaml [--threads 1]
         [--repeat 1] [--name infer_py]
@@ -17,11 +17,10 @@ import time
 import numpy as np
 
 from quad_il.inference.config import load_policy_config
-from quad_il.inference.decider import PolicyDecider, fixture_inputs
+from quad_il.inference.core import PolicyDecider
 from quad_il.inference.fixture import read_fixture
 from quad_il.inference.messages import bspline_message
 from quad_il.inference.policy import LoadedPolicy, configure_threads
-from quad_il.inference.safety import SafetyVerdict
 
 
 def percentile(values: list[float], q: float) -> float:
@@ -41,13 +40,18 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     cfg = load_policy_config(args.config)
     configure_threads(args.threads)
-    decider = PolicyDecider(LoadedPolicy(args.policy), cfg.safety, cfg.refusal)
+    policy = LoadedPolicy(args.policy)
+    # As the C++ benchmark (quad_bench's policy_bench): the safety layer and refusal, no recovery or keeping.
+    decider = PolicyDecider(policy.meta, cfg.safety, cfg.refusal)
     fx = read_fixture(args.fixture)
     decision, pre, fwd, safety = [], [], [], []
     traj_id = 0
     for r in range(-1, args.repeat):  # r = -1: warm-up pass, not recorded
         for i in range(len(fx)):
-            d = decider.decide(fixture_inputs(fx, i))
+            p, v, q, g = fx.p_world_body[i], fx.v_world[i], fx.q_world_body[i], fx.goal_world[i]
+            d, pre_ms, fwd_ms = policy.decide(
+                decider, float(fx.stamp_s[i]), fx.depth_m[i], fx.camera(i), p, v, q, g
+            )
             t0 = time.perf_counter()
             traj_id += 1
             msg = bspline_message(d.proposed, traj_id)
@@ -56,16 +60,15 @@ def main(argv: list[str] | None = None) -> int:
                 raise RuntimeError("empty message")
             if r < 0:
                 continue
-            pre.append(d.timings.preprocess_ms)
-            fwd.append(d.timings.forward_ms)
-            decision.append(d.timings.preprocess_ms + d.timings.forward_ms + message_ms)
+            pre.append(pre_ms)
+            fwd.append(fwd_ms)
+            decision.append(pre_ms + fwd_ms + message_ms)
             safety.append(d.timings.safety_ms)
     print(
         f"[bench inference] {args.name}: {len(decision)} decisions, {args.threads} thread(s): preprocessing "
         f"median {np.median(pre):.3f} ms, forward median {np.median(fwd):.3f} ms, safety layer median "
         f"{np.median(safety):.3f} ms p99 {percentile(safety, 0.99):.3f} ms; verdicts: "
-        f"{decider.counts.counts[SafetyVerdict.ACCEPTED]} accepted, "
-        f"{decider.counts.refused} refused",
+        f"{decider.accepted_count} accepted, {decider.refused_count} refused",
         file=sys.stderr,
     )
     print(f"BENCH {args.name}_ms_median {percentile(decision, 0.5):.3f} ms")

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
-from quad_il.inference.geometry import pose_matrix
-from quad_il.inference.safety import CameraModel
+from quad_il.inference.core import CameraModel
 
 FloatArray = NDArray[np.float64]
 
@@ -51,7 +51,10 @@ class DecisionFixture:
     def camera(self, i: int) -> CameraModel:
         """Intrinsics and the camera pose T_world_body(frame i) T_body_camera."""
         fx, fy, cx, cy = (float(v) for v in self.camera_k)
-        T = pose_matrix(self.p_world_body[i], self.q_world_body[i]) @ self.T_body_camera
+        T_world_body = np.eye(4)
+        T_world_body[:3, :3] = Rotation.from_quat(self.q_world_body[i]).as_matrix()
+        T_world_body[:3, 3] = self.p_world_body[i]
+        T = T_world_body @ self.T_body_camera
         h, w = self.depth_m.shape[1:]
         return CameraModel(int(w), int(h), fx, fy, cx, cy, T)
 

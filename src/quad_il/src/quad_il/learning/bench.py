@@ -36,6 +36,8 @@ from quad_il.learning.dataset import Batch, BatchLoader, load_dataset
 from quad_il.learning.preprocessing import DepthPreprocessor
 from quad_il.learning.trainer import Trainer
 from quad_il.tools.bench_check import format_bench_line
+from quad_il.tools.cli import HelpFormatter
+from quad_il.tools.repo import repo_path
 
 
 class _TimedLoader:
@@ -56,12 +58,12 @@ class _TimedLoader:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--config", default=str(Path(__file__).resolve().parents[4] / "config" / "train.yaml"))
-    ap.add_argument("--episodes", type=int, default=40)
-    ap.add_argument("--samples-per-episode", type=int, default=32)
-    ap.add_argument("--height", type=int, default=240)
-    ap.add_argument("--width", type=int, default=320)
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
+    ap.add_argument("--config", default=str(repo_path("config", "train.yaml")), help="training config")
+    ap.add_argument("--episodes", type=int, default=40, help="synthetic episodes")
+    ap.add_argument("--samples-per-episode", type=int, default=32, help="samples per synthetic episode")
+    ap.add_argument("--height", type=int, default=240, help="depth image height (px)")
+    ap.add_argument("--width", type=int, default=320, help="depth image width (px)")
     ap.add_argument("--set", action="append", default=[], help="config override, e.g. model.input_height=128")
     args = ap.parse_args(argv)
 

@@ -15,6 +15,8 @@ from typing import Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from quad_il.tools.config_overlay import deep_merge
+
 
 class ConfigError(ValueError):
     """A configuration file or override is invalid; the message names the key and the value."""
@@ -234,16 +236,6 @@ def _format_validation_error(err: ValidationError) -> str:
     return "invalid training config:\n  " + "\n  ".join(lines)
 
 
-def _deep_merge(base: dict[str, Any], update: Mapping[str, Any]) -> dict[str, Any]:
-    out = copy.deepcopy(base)
-    for key, value in update.items():
-        if isinstance(value, Mapping) and isinstance(out.get(key), dict):
-            out[key] = _deep_merge(out[key], value)
-        else:
-            out[key] = copy.deepcopy(value)
-    return out
-
-
 def parse_override(text: str) -> tuple[list[str], Any]:
     """'optim.lr=1e-3' -> (['optim', 'lr'], 0.001); the value is parsed as YAML."""
     if "=" not in text:
@@ -299,7 +291,7 @@ def load_config(paths: Sequence[str | Path] = (), overrides: Sequence[str] = ())
     """Defaults <- each YAML file in order <- each `key=value` override; validated."""
     tree: dict[str, Any] = {}
     for p in paths:
-        tree = _deep_merge(tree, read_yaml(p))
+        tree = deep_merge(tree, read_yaml(p))  # config/experiments/ overlays, in order
     return config_from_tree(apply_overrides(tree, overrides))
 
 

@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 from torch import Tensor
 
 from quad_il.data import FORMAT_VERSION as COLLECTOR_FORMAT_VERSION
-from quad_il.imitation.types import IL_PARTITION_KEY, PARTITION_CODES, Partition
+from quad_il.data.partitions import IL_PARTITION_KEY, PARTITION_CODES, Partition
 from quad_il.learning.preprocessing import DepthPreprocessor, world_to_local_points, yaw_from_quaternion
 
 # Versions of the collector's npz layout this code reads (quad_il.data, docs/data_format.md).

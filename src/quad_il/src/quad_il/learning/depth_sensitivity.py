@@ -1,5 +1,5 @@
-"""How much does a trained policy's plan depend on its depth image? (docs/learning.md, RESULTS "How much does
-the network look at the depth image?")
+"""How much does a trained policy's plan depend on its depth image? (docs/learning.md; measured in
+docs/notebook/2026-12_closed_loop_issue8.md, "How much does the network look at the depth image?")
 
 For held-out samples: the plan with the recorded depth frame, with an empty view (every pixel "no return",
 +inf) and with another sample's frame, against the expert's plan. A policy that ignores depth gives the same
@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 from quad_il.learning.dataset import DEFAULT_SHARD_OPTIONS, DatasetError, expand_paths, read_source
 from quad_il.learning.evaluation import load_policy
+from quad_il.tools.cli import HelpFormatter
 
 FloatArray = NDArray[np.float64]
 
@@ -123,15 +124,15 @@ def markdown(r: DepthSensitivity) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
     ap.add_argument(
         "--policy", required=True, help="exported policy (.ts), run directory or checkpoint (.pt)"
     )
     ap.add_argument(
         "--data", required=True, action="append", help="held-out dataset (npz or shard directory)"
     )
-    ap.add_argument("--samples", type=int, default=800)
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--samples", type=int, default=800, help="held-out samples drawn")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the sample draw and the frame swap")
     args = ap.parse_args(argv)
     if args.samples < 2:
         print("depth_sensitivity: --samples must be at least 2", file=sys.stderr)

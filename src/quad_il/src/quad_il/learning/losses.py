@@ -13,6 +13,8 @@ from typing import Literal
 import torch
 from torch import Tensor
 
+from quad_il.learning.eil import eil_row_terms
+
 LossName = Literal["mse", "sse", "eil"]
 
 
@@ -51,12 +53,10 @@ def batch_loss(name: LossName, pred: Tensor, target: Tensor) -> tuple[Tensor, Te
 def eil_per_sample(
     pred: Tensor, target: Tensor, partition: Tensor, threshold_b_m: float, intervention_weight: float
 ) -> Tensor:
-    """EIL's objective per row (quad_il.imitation.losses, docs/imitation_learning.md "EIL") on flat B-spline
+    """EIL's objective per row (quad_il.learning.eil, docs/imitation_learning.md "EIL") on flat B-spline
     vectors (B, 3K) in one frame: GOOD rows max(0, D - B), BAD rows max(0, B - D), DEMO/INTERVENTION rows
     lambda D, with D the mean squared control-point distance between the row's label and the prediction.
     Their mean equals `eil_loss(...).total` (both use `eil_row_terms`)."""
-    from quad_il.imitation.losses import eil_row_terms
-
     if pred.shape != target.shape or pred.dim() != 2 or pred.size(1) % 3 != 0:
         raise ValueError(
             f"EIL needs (B, 3K) predictions and labels, got {tuple(pred.shape)}, {tuple(target.shape)}"

@@ -15,7 +15,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
-from quad_il.learning.preprocessing import uniform_cubic_basis  # noqa: E402
+from quad_il.data.bspline import basis_matrix, uniform_knots  # noqa: E402
 
 
 def uniform_cubic_bspline(ctrl: NDArray[np.floating], samples_per_segment: int = 10) -> NDArray[np.float64]:
@@ -23,8 +23,9 @@ def uniform_cubic_bspline(ctrl: NDArray[np.floating], samples_per_segment: int =
     c = np.asarray(ctrl, dtype=np.float64)
     if len(c) < 4:
         return c
-    basis = uniform_cubic_basis(len(c), samples_per_segment * (len(c) - 3) + 1).numpy()
-    return basis @ c
+    segments = len(c) - 3  # knots (i - 3) dt: the domain is [0, segments dt]; dt = 1 here (shape only)
+    u = np.linspace(0.0, float(segments), samples_per_segment * segments + 1)
+    return basis_matrix(uniform_knots(len(c), 3, 1.0), len(c), 3, u) @ c
 
 
 def read_metrics_csv(path: str | Path) -> list[dict[str, float]]:

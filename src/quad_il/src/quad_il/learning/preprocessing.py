@@ -13,9 +13,12 @@ Quaternions are (x, y, z, w) (docs/CONVENTIONS.md).
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
+
+from quad_il.data.bspline import basis_matrix, uniform_knots
 
 STATE_DIM = 13  # position (3), velocity (3), orientation quaternion xyzw (4), goal (3)
 
@@ -212,36 +215,20 @@ class StateEncoder(nn.Module):
 
 # Uniform cubic B-spline in matrix form (Qin, "General matrix representations for B-splines", 2000):
 # p(u) = [1 u u^2 u^3] M [c_k .. c_k+3]^T for u in [0, 1] on segment k.
-_CUBIC_M = (
-    torch.tensor(
-        [[1.0, 4.0, 1.0, 0.0], [-3.0, 0.0, 3.0, 0.0], [3.0, -6.0, 3.0, 0.0], [-1.0, 3.0, -3.0, 1.0]],
-        dtype=torch.float64,
-    )
-    / 6.0
-)
-
-
 def uniform_cubic_basis(num_ctrl_pts: int, num_samples: int) -> Tensor:
     """(S, K) float64 matrix A with A[j, i] = N_i(s_j) for the dataset's B-spline representation.
 
     The dataset's K control points define a uniform cubic B-spline with knots (i - 3) dt, i = 0..K+3,
     dt = horizon_s / (K - 3), whose domain [0, horizon_s] spans K - 3 segments (docs/data_format.md); the
     samples s_j are evenly spaced over the domain, both ends included. The matrix does not depend on
-    horizon_s.
+    horizon_s, so it is computed with dt = 1 by the project's one B-spline evaluator (quad_il.data.bspline).
     """
     if num_ctrl_pts < 4:
         raise ValueError(f"a cubic B-spline needs num_ctrl_pts >= 4, got {num_ctrl_pts}")
     if num_samples < 2:
         raise ValueError(f"num_samples must be >= 2, got {num_samples}")
-    segments = num_ctrl_pts - 3
-    x = torch.linspace(0.0, float(segments), num_samples, dtype=torch.float64)
-    k = torch.clamp(torch.floor(x), max=segments - 1).long()
-    u = x - k
-    weights = torch.stack([torch.ones_like(u), u, u * u, u * u * u], dim=1) @ _CUBIC_M  # (S, 4)
-    a = torch.zeros(num_samples, num_ctrl_pts, dtype=torch.float64)
-    for j in range(4):
-        a[torch.arange(num_samples), k + j] = weights[:, j]
-    return a
+    u = np.linspace(0.0, float(num_ctrl_pts - 3), num_samples)
+    return torch.from_numpy(basis_matrix(uniform_knots(num_ctrl_pts, 3, 1.0), num_ctrl_pts, 3, u))
 
 
 def polynomial_maps(num_ctrl_pts: int, degree: int) -> tuple[Tensor, Tensor]:

@@ -30,8 +30,10 @@ import time
 from pathlib import Path
 
 from quad_il.tools.bench_check import format_bench_line
+from quad_il.tools.cli import HelpFormatter
+from quad_il.tools.repo import repo_path
 
-DEFAULT_CONFIG = Path(__file__).resolve().parents[5] / "config" / "train.yaml"
+DEFAULT_CONFIG = repo_path("config", "train.yaml")
 BENCH_NAMES = {1: "train_sps_1proc", 2: "train_sps_2procs"}
 
 
@@ -45,10 +47,10 @@ def worker(argv: list[str]) -> int:
     from quad_il.learning.distributed import init_distributed
     from quad_il.learning.trainer import Trainer
 
-    ap = argparse.ArgumentParser(prog="scale_bench worker")
-    ap.add_argument("--config", default=str(DEFAULT_CONFIG))
-    ap.add_argument("--result", required=True)
-    ap.add_argument("--set", action="append", default=[])
+    ap = argparse.ArgumentParser(formatter_class=HelpFormatter, prog="scale_bench worker")
+    ap.add_argument("--config", default=str(DEFAULT_CONFIG), help="training config")
+    ap.add_argument("--result", required=True, help="JSON file the timings are written to")
+    ap.add_argument("--set", action="append", default=[], help="config override KEY=VALUE; repeat")
     args = ap.parse_args(argv)
     cfg = load_config([args.config] if Path(args.config).is_file() else [], args.set)
     ctx = init_distributed(cfg)
@@ -94,14 +96,21 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["worker"]:
         return worker(argv[1:])
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--config", default=str(DEFAULT_CONFIG))
-    ap.add_argument("--procs", type=int, nargs="+", default=[1, 2], choices=sorted(BENCH_NAMES))
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
+    ap.add_argument("--config", default=str(DEFAULT_CONFIG), help="training config")
+    ap.add_argument(
+        "--procs",
+        type=int,
+        nargs="+",
+        default=[1, 2],
+        choices=sorted(BENCH_NAMES),
+        help="process counts measured",
+    )
     ap.add_argument("--epochs", type=int, default=6, help="1 warm-up epoch + the timed ones")
-    ap.add_argument("--episodes", type=int, default=24)
-    ap.add_argument("--samples-per-episode", type=int, default=32)
-    ap.add_argument("--height", type=int, default=120)
-    ap.add_argument("--width", type=int, default=160)
+    ap.add_argument("--episodes", type=int, default=24, help="synthetic episodes")
+    ap.add_argument("--samples-per-episode", type=int, default=32, help="samples per synthetic episode")
+    ap.add_argument("--height", type=int, default=120, help="depth image height (px)")
+    ap.add_argument("--width", type=int, default=160, help="depth image width (px)")
     ap.add_argument("--cpus", type=int, default=os.cpu_count() or 1, help="threads shared by the processes")
     ap.add_argument("--set", action="append", default=[], help="config override for both runs")
     args = ap.parse_args(argv)

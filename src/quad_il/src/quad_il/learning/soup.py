@@ -29,6 +29,7 @@ from quad_il.learning.export import export_policy_file, seeded_check_inputs
 from quad_il.learning.model import Policy
 from quad_il.learning.runinfo import software_info
 from quad_il.learning.trainer import load_policy_checkpoint
+from quad_il.tools.cli import HelpFormatter
 
 
 class SoupError(ValueError):
@@ -107,6 +108,7 @@ def export_soup(
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
+        formatter_class=HelpFormatter,
         prog="python -m quad_il.learning.soup",
         description="Average the weights of training checkpoints (same model settings) into one policy.ts.",
     )

@@ -16,10 +16,12 @@ from pathlib import Path
 from quad_il.manager.config import ConfigError, load_config
 from quad_il.manager.runner import ManagerError, PipelineRunner
 from quad_il.manager.state import StateError
+from quad_il.tools.cli import HelpFormatter
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
+        formatter_class=HelpFormatter,
         prog="imitation_learning_manager.py",
         description="Run the interactive imitation-learning pipeline (rounds of collect, train, eval) from "
         "one YAML file; resumes an interrupted run from its last completed round.",

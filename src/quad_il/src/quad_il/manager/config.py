@@ -19,6 +19,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from quad_il.imitation.config import AlgorithmConfig
+from quad_il.tools import config_overlay
 
 
 class ConfigError(ValueError):
@@ -195,13 +196,22 @@ def config_from_tree(tree: Mapping[str, Any]) -> ManagerConfig:
 
 
 def load_config(path: str | Path) -> tuple[ManagerConfig, str]:
-    """(validated config, the file's text). The text is what the run directory keeps and hashes."""
+    """(validated config, the file's text). The text is what the run directory keeps. A file that is an
+    overlay of another (`overlay_of:`, quad_il.tools.config_overlay) is merged over its base; its text is then
+    the merged config, so the run directory holds the whole of it. Relative paths resolve against `path`'s
+    directory either way."""
     p = Path(path)
     if not p.is_file():
         raise ConfigError(f"config file not found: {p}")
     text = p.read_text()
     try:
-        tree = yaml.safe_load(text)
+        if config_overlay.base_of(p) is not None:
+            tree = config_overlay.load_tree(p)
+            text = config_overlay.dump(tree, f"# {p}, merged over its base (quad_il.tools.config_overlay)\n")
+        else:
+            tree = yaml.safe_load(text)
+    except config_overlay.OverlayError as e:
+        raise ConfigError(str(e)) from None
     except yaml.YAMLError as e:
         raise ConfigError(f"config file {p} is not valid YAML: {e}") from None
     if not isinstance(tree, dict):

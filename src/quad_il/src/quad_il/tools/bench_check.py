@@ -13,6 +13,8 @@ import re
 import sys
 from dataclasses import dataclass
 
+from quad_il.tools.cli import HelpFormatter
+
 BENCH_RE = re.compile(r"^BENCH (?P<name>[a-z0-9_]+) (?P<value>\S+) (?P<unit>\S+)$")
 
 
@@ -52,8 +54,8 @@ def format_bench_line(name: str, value: float, unit: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("files", nargs="*")
+    ap = argparse.ArgumentParser(formatter_class=HelpFormatter, description=__doc__.splitlines()[0])
+    ap.add_argument("files", nargs="*", help="benchmark outputs (none: stdin)")
     ap.add_argument("--expect", action="append", default=[], help="a BENCH name that must appear")
     args = ap.parse_args(argv)
     streams = [open(f) for f in args.files] if args.files else [sys.stdin]

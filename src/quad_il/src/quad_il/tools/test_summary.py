@@ -14,6 +14,8 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from quad_il.tools.cli import HelpFormatter
+
 
 @dataclass
 class Summary:
@@ -57,8 +59,8 @@ def summarise_file(path: Path) -> Summary:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("dirs", nargs="+", type=Path)
+    ap = argparse.ArgumentParser(formatter_class=HelpFormatter, description=__doc__.splitlines()[0])
+    ap.add_argument("dirs", nargs="+", type=Path, help="directories of test result XML files")
     args = ap.parse_args(argv)
     total = Summary()
     files = sorted(p for d in args.dirs if d.exists() for p in d.rglob("*.xml"))

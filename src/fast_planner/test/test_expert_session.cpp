@@ -1,0 +1,139 @@
+// The expert as fast_planner_node drives it, without ROS: labeller mode end to end (the label starts from the
+// paired odometry and the collector records exactly that odometry), flight mode's odometry, episode resets.
+#include <cpp_data_collector/dataset_reader.h>
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <limits>
+#include <memory>
+#include <string>
+
+#include "fast_planner/expert_session.h"
+#include "test_util.h"
+
+namespace fast_planner {
+namespace {
+
+namespace fs = std::filesystem;
+
+constexpr double kPeriodS = 0.005;
+
+PlannerConfig DepthConfig() {
+  PlannerConfig c;
+  c.map = test::SmallMapConfig(Eigen::Vector3d(20.0, 10.0, 4.0), 0.1, 0.3, 0.0, 4.0);
+  c.map.source = MapSource::kDepth;
+  c.map.local_update_range_m = Eigen::Vector3d(8.0, 8.0, 2.0);
+  return c;
+}
+
+// Hovering at (2, 5, 1.5), stamped i * 5 ms.
+quad_core::VehicleState Hover(int i) {
+  quad_core::VehicleState s;
+  s.t_s = i * kPeriodS;
+  s.p_world_body = Eigen::Vector3d(2.0, 5.0, 1.5);
+  return s;
+}
+
+// An empty view (no return within range) stamped at odometry step i, its pose still unset.
+std::shared_ptr<DepthFrame> Frame(int i) {
+  auto f = std::make_shared<DepthFrame>(
+      test::ConstantDepthFrame(std::numeric_limits<float>::infinity(), Eigen::Vector3d::Zero()));
+  f->stamp_s = i * kPeriodS;
+  return f;
+}
+
+const CameraMount kMount{Eigen::Vector3d(0.1, 0.0, 0.0), test::CameraLookingAlongX()};
+
+TEST(ExpertSession, LabellerPlansFromThePairedOdometryAndRecordsIt) {
+  const fs::path dir = fs::temp_directory_path() / "fast_planner_expert_session_labeller";
+  fs::remove_all(dir);
+  ExpertSession s(DepthConfig(), /*label_every_frame=*/true);
+  auto collector = std::make_shared<PlanCollector>(COLLECTOR_CONFIG_PATH, dir.string(), "",
+                                                   std::vector<std::pair<std::string, std::string>>{},
+                                                   cpp_data_collector::OpenMode::kCreate, nullptr);
+  s.SetCollector(collector);
+  collector->Start(Frame(0)->intrinsics);
+  for (int i = 890; i <= 899; ++i) {
+    const ReplannerOutput out = s.OnOdometry(Hover(i));
+    EXPECT_TRUE(out.transitions.empty() && !out.trajectory);  // the labeller never flies
+  }
+  EXPECT_FALSE(s.FrameCovered(900 * kPeriodS));  // the frame's own period has not arrived
+  s.OnOdometry(Hover(900));
+  EXPECT_TRUE(s.FrameCovered(900 * kPeriodS));
+
+  auto frame = Frame(900);
+  ASSERT_TRUE(s.SetCameraPose(kMount, frame.get()));
+  EXPECT_NEAR((frame->p_world_camera - Eigen::Vector3d(2.1, 5.0, 1.5)).norm(), 0.0, 1e-12);
+  EXPECT_FALSE(s.OnDepth(frame).label.has_value());  // no goal yet: the node answers with an empty B-spline
+
+  ReplannerOutput goal_out;
+  ASSERT_EQ(s.SetGoal(Eigen::Vector3d(6.0, 5.0, 1.5), 0.0, &goal_out), "");
+  EXPECT_FALSE(goal_out.trajectory.has_value());
+  s.OnOdometry(Hover(901));  // newer than the frame: never paired with it
+  const ExpertSession::FrameOutput out = s.OnDepth(frame);
+  ASSERT_TRUE(out.label.has_value());
+  ASSERT_TRUE(out.label->ok()) << out.label->reason;
+  EXPECT_EQ(out.label->start_time_s, frame->stamp_s);
+  EXPECT_NEAR(
+      (out.label->spline->Evaluate(out.label->spline->tmin()).head<3>() - Eigen::Vector3d(2.0, 5.0, 1.5))
+          .norm(),
+      0.0, 1e-6);
+  EXPECT_EQ(s.last_map_update_ms(), out.map_update.total_ms);
+  ASSERT_TRUE(collector->Finalize().ok);
+
+  const cpp_data_collector::DatasetReader reader(dir.string());
+  ASSERT_EQ(reader.num_records(), 1u);
+  const cpp_data_collector::DecodedRecord d = reader.shards().at(0).Decode(0);
+  EXPECT_EQ(d.head.odom_stamp_s, 900 * kPeriodS);  // the paired odometry, not the newest (901)
+  EXPECT_EQ(d.head.depth_stamp_s, frame->stamp_s);
+  EXPECT_EQ(d.head.sim_time_s, frame->stamp_s);
+  EXPECT_EQ(d.head.t_map_update_ms, out.map_update.total_ms);  // this frame's map update
+  EXPECT_EQ(d.head.bspline_traj_id, out.label->traj_id);
+  fs::remove_all(dir);
+}
+
+TEST(ExpertSession, AFrameWithoutOdometryBeforeItHasNoPose) {
+  ExpertSession s(DepthConfig(), true);
+  s.OnOdometry(Hover(901));
+  auto frame = Frame(900);
+  EXPECT_FALSE(s.SetCameraPose(kMount, frame.get()));
+}
+
+TEST(ExpertSession, FlightModeStepsTheReplannerAndMalformedInputChangesNothing) {
+  ExpertSession s(DepthConfig(), /*label_every_frame=*/false);
+  const ReplannerOutput first = s.OnOdometry(Hover(1));
+  ASSERT_FALSE(first.transitions.empty());  // the state machine leaves idle on the first odometry
+  quad_core::VehicleState bad = Hover(2);
+  bad.v_world.x() = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THROW(s.OnOdometry(bad), std::invalid_argument);
+  EXPECT_EQ(s.odometry().samples().size(), 1u);
+  auto frame = Frame(1);
+  frame->image.depth_m.pop_back();
+  EXPECT_THROW(s.OnDepth(frame), std::invalid_argument);
+  EXPECT_EQ(s.replanner().manager().last_depth(), nullptr);
+}
+
+TEST(ExpertSession, ANewEpisodeKeepsOnlyItsOwnEarlyOdometry) {
+  ExpertSession s(DepthConfig(), /*label_every_frame=*/false);
+  for (int i = 880; i <= 900; ++i) s.OnOdometry(Hover(i));
+  const auto replay = s.StartEpisode(890 * kPeriodS);
+  ASSERT_EQ(replay.size(), 11u);  // stamps 890..900
+  EXPECT_EQ(replay.front().first, 890 * kPeriodS);
+  EXPECT_FALSE(replay.front().second.transitions.empty());  // the reset replanner left idle again
+  EXPECT_EQ(s.odometry().samples().size(), 11u);
+  EXPECT_EQ(s.odometry().samples().front().t_s, 890 * kPeriodS);
+}
+
+TEST(ExpertSession, ANewEpisodeForgetsTheLabellersGoal) {
+  ExpertSession s(DepthConfig(), true);
+  s.OnOdometry(Hover(1));
+  ReplannerOutput out;
+  ASSERT_EQ(s.SetGoal(Eigen::Vector3d(6.0, 5.0, 1.5), 0.0, &out), "");
+  EXPECT_TRUE(s.labeller().goal().has_value());
+  EXPECT_TRUE(s.StartEpisode(1.0).empty());
+  EXPECT_FALSE(s.labeller().goal().has_value());
+  EXPECT_TRUE(s.odometry().empty());
+}
+
+}  // namespace
+}  // namespace fast_planner
