@@ -130,3 +130,22 @@ def test_python_inference_is_at_most_1000_lines() -> None:
         len(f.read_text().splitlines()) for f in (SRC / "quad_il/src/quad_il/inference").rglob("*.py")
     )
     assert total <= 1000, f"quad_il/inference is {total} lines: the decider lives in C++ (quad_policy)"
+
+
+def test_vocabulary_messages_are_converted_in_quad_ros_only() -> None:
+    """Odometry, camera info and depth images <-> quad_core types: once, in quad_ros, for every node."""
+    patterns = [
+        r"VehicleState\s+\w+\(const nav_msgs::Odometry&",
+        r"nav_msgs::Odometry\s+\w+\(const quad_core::VehicleState&",
+        r"CameraIntrinsics\s+\w+\(const sensor_msgs::CameraInfo&",
+        r"sensor_msgs::CameraInfo\s+\w+\(const quad_core::CameraIntrinsics&",
+    ]
+    packages = sorted(p.name for p in SRC.iterdir() if (p / "package.xml").is_file())
+    for pattern in patterns:
+        where = [
+            str(f.relative_to(ROOT))
+            for pkg in packages
+            for f in _sources(pkg)
+            if "test" not in f.parts and re.search(pattern, f.read_text(errors="replace"))
+        ]
+        assert where and all(w.startswith("src/quad_ros/") for w in where), f"{pattern}: {where}"

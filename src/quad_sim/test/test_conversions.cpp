@@ -1,4 +1,5 @@
 // quad_sim_node's message conversion (src/ros/conversions.h), without a ROS master.
+#include "quad_ros/vocabulary.h"
 #include "ros/conversions.h"
 #include "test_util.h"
 
@@ -9,56 +10,15 @@
 namespace quad_sim_ros {
 namespace {
 
-TEST(Conversions, OdometryCarriesTheStateWithTheTwistInTheWorldFrame) {
+TEST(Conversions, TfOfTheOdometryIsWorldToBaseLink) {
   quad_core::VehicleState s;
   s.p_world_body = Eigen::Vector3d(1.0, -2.0, 3.0);
-  s.v_world = Eigen::Vector3d(0.5, 0.25, -0.125);
-  s.q_world_body = Eigen::Quaterniond(Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitZ()));
-  s.w_body = Eigen::Vector3d(1.0, 0.0, 0.0);  // roll rate about body x = world y after the 90 deg yaw
-  const nav_msgs::Odometry o = ToOdometry(s, StampOf(1005000000ULL));
-  EXPECT_EQ(o.header.stamp.toNSec(), 1005000000ULL);
-  EXPECT_EQ(o.header.frame_id, "world");
-  EXPECT_EQ(o.child_frame_id, "base_link");
-  EXPECT_EQ(o.pose.pose.position.y, -2.0);
-  EXPECT_DOUBLE_EQ(o.pose.pose.orientation.w, s.q_world_body.w());
-  EXPECT_EQ(o.twist.twist.linear.z, -0.125);
-  EXPECT_NEAR(o.twist.twist.angular.x, 0.0, 1e-12);
-  EXPECT_NEAR(o.twist.twist.angular.y, 1.0, 1e-12);
-  const tf2_msgs::TFMessage tf = ToTf(o);
+  const tf2_msgs::TFMessage tf = ToTf(quad_ros::ToOdometryMsg(s, StampOf(1005000000ULL)));
   ASSERT_EQ(tf.transforms.size(), 1u);
+  EXPECT_EQ(tf.transforms[0].header.stamp.toNSec(), 1005000000ULL);
   EXPECT_EQ(tf.transforms[0].header.frame_id, "world");
   EXPECT_EQ(tf.transforms[0].child_frame_id, "base_link");
   EXPECT_EQ(tf.transforms[0].transform.translation.z, 3.0);
-}
-
-TEST(Conversions, DepthImageIs32FC1RowMajorWithItsCameraInfo) {
-  quad_core::DepthImage img;
-  img.width = 3;
-  img.height = 2;
-  img.depth_m = {1.f, 2.f, 3.f, 4.f, 5.f, std::numeric_limits<float>::infinity()};
-  const sensor_msgs::Image m = ToImage(img, StampOf(2000000000ULL), 7);
-  EXPECT_EQ(m.encoding, "32FC1");
-  EXPECT_EQ(m.header.frame_id, "camera");
-  EXPECT_EQ(m.header.seq, 7u);
-  EXPECT_EQ(m.step, 12u);
-  ASSERT_EQ(m.data.size(), 24u);
-  float last;
-  std::memcpy(&last, m.data.data() + 20, 4);
-  EXPECT_TRUE(std::isinf(last));
-  quad_core::CameraIntrinsics k;
-  k.width = 3;
-  k.height = 2;
-  k.fx = 10.0;
-  k.fy = 11.0;
-  k.cx = 1.5;
-  k.cy = 1.0;
-  const sensor_msgs::CameraInfo c = ToCameraInfo(k, m.header);
-  EXPECT_EQ(c.header.stamp, m.header.stamp);
-  EXPECT_EQ(c.K[0], 10.0);
-  EXPECT_EQ(c.K[4], 11.0);
-  EXPECT_EQ(c.K[2], 1.5);
-  EXPECT_EQ(c.P[6], 1.0);
-  EXPECT_EQ(c.D.size(), 5u);
 }
 
 TEST(Conversions, ZeroGainsKeepTheOnboardDefaults) {

@@ -7,6 +7,7 @@
 #include <geometry_msgs/PoseStamped.h>
 #include <quad_msgs/EpisodeStatus.h>
 #include <quad_msgs/FrameAck.h>
+#include <quad_ros/vocabulary.h>
 #include <ros/ros.h>
 #include <sensor_msgs/image_encodings.h>
 #include <std_msgs/String.h>
@@ -89,7 +90,7 @@ class FastPlannerNode {
     if (!Labeller()) tracker_.Connect();
     if (msg->header.stamp < episode_start_) return;  // the previous episode's, arriving after the reset
     try {
-      Handle(expert_.OnOdometry(conv::ToVehicleState(*msg)), msg->header.stamp);
+      Handle(expert_.OnOdometry(quad_ros::ToVehicleState(*msg)), msg->header.stamp);
     } catch (const std::invalid_argument& e) {
       ROS_WARN_THROTTLE(kLogThrottleS, "fast_planner: skipping odometry: %s", e.what());
       return;
@@ -102,7 +103,7 @@ class FastPlannerNode {
   }
 
   void OnInfo(const sensor_msgs::CameraInfo::ConstPtr& msg) {
-    intrinsics_ = conv::ToIntrinsics(*msg);
+    intrinsics_ = quad_ros::ToIntrinsics(*msg);
     if (!collector_ || collector_->started()) return;
     try {
       ROS_INFO("fast_planner: %s", collector_->Start(*intrinsics_).c_str());

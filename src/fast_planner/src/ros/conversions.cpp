@@ -45,25 +45,6 @@ visualization_msgs::Marker NewMarker(const std::string& ns, int type, double sca
 
 }  // namespace
 
-quad_core::VehicleState ToVehicleState(const nav_msgs::Odometry& msg) {
-  quad_core::VehicleState o;
-  o.t_s = msg.header.stamp.toSec();
-  const auto& p = msg.pose.pose.position;
-  const auto& q = msg.pose.pose.orientation;
-  const auto& v = msg.twist.twist.linear;
-  const auto& w = msg.twist.twist.angular;
-  o.p_world_body = Eigen::Vector3d(p.x, p.y, p.z);
-  o.q_world_body = Eigen::Quaterniond(q.w, q.x, q.y, q.z);
-  o.v_world = Eigen::Vector3d(v.x, v.y, v.z);  // twist in the world frame (docs/CONVENTIONS.md)
-  o.w_body = Eigen::Vector3d(w.x, w.y, w.z);
-  return o;
-}
-
-quad_core::CameraIntrinsics ToIntrinsics(const sensor_msgs::CameraInfo& msg) {
-  return quad_core::CameraIntrinsics{
-      static_cast<int>(msg.width), static_cast<int>(msg.height), msg.K[0], msg.K[4], msg.K[2], msg.K[5]};
-}
-
 CameraMount ToCameraMount(const geometry_msgs::TransformStamped& t) {
   const auto& tr = t.transform.translation;
   const auto& r = t.transform.rotation;

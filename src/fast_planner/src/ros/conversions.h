@@ -26,10 +26,6 @@
 
 namespace fast_planner::ros_conv {
 
-// nav_msgs/Odometry (twist in the world frame) -> the vehicle state; validated by the planner.
-quad_core::VehicleState ToVehicleState(const nav_msgs::Odometry& msg);
-// CameraInfo's size and K (no skew).
-quad_core::CameraIntrinsics ToIntrinsics(const sensor_msgs::CameraInfo& msg);
 // The base_link -> camera transform as the camera's mount on the body.
 CameraMount ToCameraMount(const geometry_msgs::TransformStamped& t);
 

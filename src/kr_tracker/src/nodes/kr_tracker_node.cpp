@@ -17,6 +17,7 @@
 #include <quad_msgs/SO3Command.h>
 #include <quad_msgs/SwitchTracker.h>
 #include <quad_msgs/TrackBsplineAction.h>
+#include <quad_ros/vocabulary.h>
 #include <ros/ros.h>
 
 #include <algorithm>
@@ -73,7 +74,7 @@ class TrackerNode {
   }
 
   void OnOdom(const nav_msgs::Odometry::ConstPtr& msg) {
-    const quad_core::VehicleState state = ros_conv::ToVehicleState(*msg);
+    const quad_core::VehicleState state = quad_ros::ToVehicleState(*msg);
     const bool first = !manager_.have_odom();
     if (state.AllFinite() && !first && state.t_s <= manager_.last_state().t_s) {
       ROS_WARN_THROTTLE(1.0, "kr_tracker: odometry stamp did not advance (%.4f after %.4f)", state.t_s,

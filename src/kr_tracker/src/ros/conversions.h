@@ -21,19 +21,6 @@ inline void ToVector3(const Eigen::Vector3d& v, geometry_msgs::Vector3* m) {
   m->z = v.z();
 }
 
-// nav_msgs/Odometry (twist in the world frame) -> the vehicle state.
-inline quad_core::VehicleState ToVehicleState(const nav_msgs::Odometry& m) {
-  quad_core::VehicleState s;
-  s.t_s = m.header.stamp.toSec();
-  const auto& p = m.pose.pose.position;
-  const auto& q = m.pose.pose.orientation;
-  s.p_world_body = Eigen::Vector3d(p.x, p.y, p.z);
-  s.q_world_body = Eigen::Quaterniond(q.w, q.x, q.y, q.z);
-  s.v_world = Eigen::Vector3d(m.twist.twist.linear.x, m.twist.twist.linear.y, m.twist.twist.linear.z);
-  s.w_body = Eigen::Vector3d(m.twist.twist.angular.x, m.twist.twist.angular.y, m.twist.twist.angular.z);
-  return s;
-}
-
 // A TrackBspline goal's B-spline as the tracker takes it (validated by the tracker).
 inline BsplineGoalSpec ToGoalSpec(const quad_msgs::Bspline& b) {
   BsplineGoalSpec s;

@@ -120,7 +120,7 @@ class PolicyNode {
   void OnOdom(const nav_msgs::Odometry::ConstPtr& msg) {
     {
       std::lock_guard<std::mutex> lock(mu_);
-      odom_.push_back(quad_policy::ToVehicleState(*msg));
+      odom_.push_back(quad_ros::ToVehicleState(*msg));
       while (odom_.size() > 400) odom_.pop_front();
     }
     odom_cv_.notify_all();

@@ -10,6 +10,7 @@
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
+#include <quad_core/pairing.h>
 
 #include <quad_core/strict_yaml.h>
 
@@ -115,6 +116,13 @@ PYBIND11_MODULE(quad_policy_py, m) {
       "The C++ inference core of quad_il (quad_policy), bound for the Python policy node. docs/inference.md";
   py::register_exception<quad_core::ConfigError>(m, "ConfigError", PyExc_ValueError);
   py::register_exception<PolicyFormatError>(m, "PolicyFormatError", PyExc_ValueError);
+
+  // The frame/odometry pairing rule (quad_core/pairing.h), bound so that its Python twin
+  // (quad_il.frame_pairing, dependency-free for the nodes) is tested against it.
+  m.def("odometry_covers_frame", &quad_core::OdometryCoversFrame, py::arg("newest_odom_stamp_s"),
+        py::arg("frame_stamp_s"), py::arg("odom_period_s"));
+  m.def("odometry_not_newer_than_frame", &quad_core::OdometryNotNewerThanFrame, py::arg("odom_stamp_s"),
+        py::arg("frame_stamp_s"));
 
   py::class_<PolicyMeta>(m, "PolicyMeta")
       .def_readonly("input_height", &PolicyMeta::input_height)

@@ -6,6 +6,7 @@
 #include <geometry_msgs/TransformStamped.h>
 #include <nav_msgs/Odometry.h>
 #include <quad_msgs/Bspline.h>
+#include <quad_ros/vocabulary.h>
 #include <ros/time.h>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
@@ -68,19 +69,6 @@ inline visualization_msgs::Marker PlanMarker(const UniformBspline& s, const std_
   return m;
 }
 
-// Odometry with its twist in the world frame (docs/CONVENTIONS.md).
-inline VehicleState ToVehicleState(const nav_msgs::Odometry& msg) {
-  VehicleState s;
-  s.t_s = msg.header.stamp.toSec();
-  const auto& p = msg.pose.pose.position;
-  const auto& q = msg.pose.pose.orientation;
-  const auto& v = msg.twist.twist.linear;
-  s.p_world_body = Eigen::Vector3d(p.x, p.y, p.z);
-  s.q_world_body = Eigen::Quaterniond(q.w, q.x, q.y, q.z);
-  s.v_world = Eigen::Vector3d(v.x, v.y, v.z);
-  return s;
-}
-
 inline Eigen::Isometry3d ToIsometry(const geometry_msgs::Transform& t) {
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
   T.linear() = Eigen::Quaterniond(t.rotation.w, t.rotation.x, t.rotation.y, t.rotation.z)
@@ -113,8 +101,7 @@ inline DepthImageView DepthView(const sensor_msgs::Image& img, std::string* prob
   *problem = DepthLayoutProblem(
       {img.encoding, img.is_bigendian != 0, img.width, img.height, img.step, img.data.size()});
   if (!problem->empty()) return DepthImageView{};
-  return DepthImageView{static_cast<int>(img.width), static_cast<int>(img.height), img.step / 4,
-                        reinterpret_cast<const float*>(img.data.data())};
+  return quad_ros::DepthViewOf(img);
 }
 
 }  // namespace quad_policy

@@ -4,6 +4,7 @@
 // ~world_seed (int; -1: world.seed of the config). Topics are relative except ROS's /clock, /tf, /tf_static,
 // which a second simulator under the same master remaps (docs/quad_sim.md, "Several simulators").
 #include "quad_core/lockstep_gate.h"
+#include "quad_ros/vocabulary.h"
 #include "quad_sim/simulator.h"
 #include "quad_sim/time_keeper.h"
 #include "ros/conversions.h"
@@ -84,7 +85,7 @@ class QuadSimNode {
       const bool depth_due = sim_.DepthDue();
       if (time_.ClockDue(odom_due, depth_due)) clock_pub_.publish(quad_sim_ros::ToClock(now));
       if (odom_due) {
-        last_odom_ = quad_sim_ros::ToOdometry(sim_.Odometry(z_offset_m_, now.toSec()), now);
+        last_odom_ = quad_ros::ToOdometryMsg(sim_.Odometry(z_offset_m_, now.toSec()), now);
         odom_pub_.publish(last_odom_);
         ++odometry_count_;
         tf_pub_.publish(quad_sim_ros::ToTf(last_odom_));
@@ -94,10 +95,10 @@ class QuadSimNode {
         // In lockstep the run statistics go out before every frame: a consumer holding a frame has the
         // timeout counts up to it (the evaluation's runner counts each episode's timeouts this way).
         if (time_.WaitsForFrames()) PublishStats();
-        const sensor_msgs::Image img = quad_sim_ros::ToImage(sim_.RenderDepth(), now, ++frame_seq_);
+        const sensor_msgs::Image img = quad_ros::ToImageMsg(sim_.RenderDepth(), now, ++frame_seq_);
         ++depth_frame_count_;
         depth_pub_.publish(img);
-        info_pub_.publish(quad_sim_ros::ToCameraInfo(sim_.camera_intrinsics(), img.header));
+        info_pub_.publish(quad_ros::ToCameraInfo(sim_.camera_intrinsics(), img.header));
         if (time_.WaitsForFrames()) AwaitGate(false, now);
       }
       if (resets_.pending()) continue;  // a reset arrived during a wait: start the new episode instead

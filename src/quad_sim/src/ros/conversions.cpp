@@ -59,23 +59,6 @@ std_msgs::Float64 ToFloat64(double value) {
   return m;
 }
 
-nav_msgs::Odometry ToOdometry(const quad_core::VehicleState& s, const ros::Time& stamp) {
-  nav_msgs::Odometry o;
-  o.header.stamp = stamp;
-  o.header.frame_id = "world";
-  o.child_frame_id = "base_link";
-  o.pose.pose.position = ToPoint(s.p_world_body);
-  o.pose.pose.orientation = ToQuat(s.q_world_body);
-  const Eigen::Vector3d w_world = s.q_world_body * s.w_body;
-  o.twist.twist.linear.x = s.v_world.x();
-  o.twist.twist.linear.y = s.v_world.y();
-  o.twist.twist.linear.z = s.v_world.z();
-  o.twist.twist.angular.x = w_world.x();
-  o.twist.twist.angular.y = w_world.y();
-  o.twist.twist.angular.z = w_world.z();
-  return o;
-}
-
 tf2_msgs::TFMessage ToTf(const nav_msgs::Odometry& odom) {
   geometry_msgs::TransformStamped tf;
   tf.header = odom.header;
@@ -101,34 +84,6 @@ tf2_msgs::TFMessage CameraMountTf(const quad_sim::DepthCameraConfig& camera, con
   tf2_msgs::TFMessage m;
   m.transforms.push_back(tf);
   return m;
-}
-
-sensor_msgs::Image ToImage(const quad_core::DepthImage& img, const ros::Time& stamp, uint32_t seq) {
-  sensor_msgs::Image m;
-  m.header.stamp = stamp;
-  m.header.frame_id = "camera";
-  m.header.seq = seq;
-  m.width = img.width;
-  m.height = img.height;
-  m.encoding = "32FC1";
-  m.is_bigendian = 0;
-  m.step = img.width * sizeof(float);
-  m.data.resize(img.depth_m.size() * sizeof(float));
-  std::memcpy(m.data.data(), img.depth_m.data(), m.data.size());
-  return m;
-}
-
-sensor_msgs::CameraInfo ToCameraInfo(const quad_core::CameraIntrinsics& k, const std_msgs::Header& header) {
-  sensor_msgs::CameraInfo c;
-  c.header = header;
-  c.width = k.width;
-  c.height = k.height;
-  c.distortion_model = "plumb_bob";
-  c.D.assign(5, 0.0);
-  c.K = {k.fx, 0, k.cx, 0, k.fy, k.cy, 0, 0, 1};
-  c.R = {1, 0, 0, 0, 1, 0, 0, 0, 1};
-  c.P = {k.fx, 0, k.cx, 0, 0, k.fy, k.cy, 0, 0, 0, 1, 0};
-  return c;
 }
 
 quad_msgs::EpisodeStatus ToEpisodeStatus(const quad_sim::Simulator& sim, const ros::Time& now,

@@ -39,17 +39,11 @@ geometry_msgs::Point ToPoint(const Eigen::Vector3d& v);
 rosgraph_msgs::Clock ToClock(const ros::Time& now);
 std_msgs::Float64 ToFloat64(double value);
 
-// nav_msgs/Odometry in `world` -> `base_link`, the twist in the world frame (docs/CONVENTIONS.md), angular
-// velocity included. The stamp is passed exactly (the state's t_s is a double).
-nav_msgs::Odometry ToOdometry(const quad_core::VehicleState& s, const ros::Time& stamp);
+// Odometry, depth images and camera info: quad_ros/vocabulary.h (shared by every node).
 // The world -> base_link transform of an odometry message.
 tf2_msgs::TFMessage ToTf(const nav_msgs::Odometry& odom);
 // The simulator's only static transform: base_link -> camera (the camera mount).
 tf2_msgs::TFMessage CameraMountTf(const quad_sim::DepthCameraConfig& camera, const ros::Time& stamp);
-
-// sensor_msgs/Image 32FC1 in frame `camera` (REP 118), and its CameraInfo (plumb_bob, no distortion).
-sensor_msgs::Image ToImage(const quad_core::DepthImage& img, const ros::Time& stamp, uint32_t seq);
-sensor_msgs::CameraInfo ToCameraInfo(const quad_core::CameraIntrinsics& k, const std_msgs::Header& header);
 
 // The episode's status; lockstep timeouts so far are appended to the reason when there are any.
 quad_msgs::EpisodeStatus ToEpisodeStatus(const quad_sim::Simulator& sim, const ros::Time& now,

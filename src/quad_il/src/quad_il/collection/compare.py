@@ -1,17 +1,26 @@
 """Checks on collected datasets: run-to-run reproducibility and depth/odometry synchronisation.
 
-Used by the collection tests (tests/rostest/collect_*.py) and the collection benchmark.
+Used by the collection tests (tests/rostest/collect_*.py) and the collection benchmark. As a command, it
+prints each dataset's record count and the sha256 of its records without the wall-clock fields, and with two
+datasets the fields that differ (exit 1 if any, 2 if a dataset cannot be read):
+
+    python -m quad_il.collection.compare DATASET_A [DATASET_B]
 """
 
 from __future__ import annotations
 
+import argparse
+import hashlib
 import os
+import sys
 from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
 
+from quad_il.data.format import DatasetError
 from quad_il.data.shards import open_dataset
+from quad_il.tools.cli import HelpFormatter
 
 # Record fields that hold wall-clock (CPU) measurements, and the CRC that covers them: they differ between two
 # otherwise identical runs.
@@ -83,3 +92,41 @@ def stamp_gaps_s(records: np.ndarray) -> np.ndarray:
     if len(records) == 0:
         return np.zeros(0)
     return np.abs(records["odom_stamp_s"] - records["depth_stamp_s"])
+
+
+def records_digest(records: np.ndarray, ignore: Iterable[str] = NON_REPRODUCIBLE_FIELDS) -> str:
+    """sha256 of every record field but `ignore`, field by field in layout order: equal digests mean
+    bit-identical records apart from the wall-clock timings (two runs of one binary differ in those)."""
+    h = hashlib.sha256()
+    skip = set(ignore)
+    for name in records.dtype.names or ():
+        if name not in skip:
+            h.update(name.encode())
+            h.update(np.ascontiguousarray(records[name]).tobytes())
+    return h.hexdigest()
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="python -m quad_il.collection.compare", formatter_class=HelpFormatter, description=__doc__
+    )
+    ap.add_argument("datasets", nargs="+", help="one or two dataset directories (shards + manifest)")
+    args = ap.parse_args(argv)
+    if len(args.datasets) > 2:
+        ap.error("give one or two dataset directories")
+    try:
+        records = [dataset_records(d) for d in args.datasets]
+    except (OSError, ValueError, DatasetError) as e:
+        print(f"compare: {e}", file=sys.stderr)
+        return 2
+    for d, r in zip(args.datasets, records, strict=True):
+        print(f"{d}: {len(r)} records, sha256 without timing fields {records_digest(r)}")
+    if len(records) == 2:
+        diffs = compare_records(*records)
+        print("differences: " + ("none" if not diffs else "\n  " + "\n  ".join(diffs)))
+        return 1 if diffs else 0
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
