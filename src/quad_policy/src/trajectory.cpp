@@ -12,8 +12,8 @@ namespace {
 // refuses non-finite control points when it is built, while the safety layer must judge network outputs that
 // hold NaN/Inf and refuse them with a verdict (non_finite_output) rather than an exception; TrajectoryInView
 // and policy_replay evaluate such plans too. With NonUniformBspline the parity fixture's replay stopped at
-// its NaN trajectory instead of giving the decisions recorded before the change (/tmp/baseline, issue 31
-// report).
+// its NaN trajectory instead of giving the decisions it gave before
+// (docs/notebook/2026-12_floor_plan_issue31.md).
 const Eigen::Matrix4d& CubicMatrix() {
   // Uniform cubic B-spline in matrix form (Qin 2000): p(u) = [1 u u^2 u^3] M [c_k .. c_k+3]^T.
   static const Eigen::Matrix4d m =
