@@ -8,10 +8,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from test_data_writer import config, sample
 
-from quad_il.collection.episodes import EpisodeLog, EpisodeOutcome
+from quad_il.collection.episodes import EpisodeLog, EpisodeOutcome, manager_config, plan_episode
 from quad_il.collection.prepare import PrepareError, prepare_output_dir
 from quad_il.collection.resume import RUN_FILE, ResumeError, plan_resume, run_identity
+from quad_il.data.writer import DatasetWriter
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -102,3 +104,39 @@ def test_a_row_cut_short_by_a_crash_is_ignored_and_a_bad_row_is_an_error(tmp_pat
     path.write_text(path.read_text() + "ched,,7.0,14\nx,5,goal_reached,,1.0,3\n")
     with pytest.raises(ValueError, match=r"episodes.csv: line 4 is not an episode row"):
         EpisodeLog.read(path)
+
+
+def _dataset_of_episode_zero(out: Path, args: dict[str, str], episode_id: int) -> int:
+    """A finalised dataset holding 3 records of episode 0 (its goal, the given episode id) and its
+    episodes.csv row; returns the record count."""
+    goal = plan_episode(manager_config(args["collect_config"], {"seeds": "4,5"}), 0).goal_world
+    w = DatasetWriter(config(out))
+    for i in range(3):
+        assert w.record(sample(i, episode_id=episode_id, goal_world=list(goal)))[0] == "queued"
+    assert w.finalize()
+    log = EpisodeLog(out / "episodes.csv")
+    log.append(EpisodeOutcome(0, 4, "goal_reached", "", 7.0, 3))
+    log.close()
+    return 3
+
+
+def test_a_dataset_of_keyed_episodes_resumes_and_one_collected_before_keys_is_refused(tmp_path: Path) -> None:
+    """Resumed episodes are keyed (issue 32): they get the ids a straight run gives them (index + 1), which
+    only continue a dataset whose finished episodes carry theirs; an older dataset (ids counted by the
+    simulator process) is refused naming the record, the id and the fix."""
+    args = run_args(tmp_path)
+    params = {"config": args["collect_config"], "seeds": "4,5"}
+    keyed = tmp_path / "keyed"
+    prepare_output_dir(str(keyed), run_args=args)
+    n = _dataset_of_episode_zero(keyed, args, episode_id=1)
+    plan = plan_resume(keyed, run_identity(args), params)
+    assert [r.index for r in plan.finished] == [0] and plan.records_kept == n and plan.records_cut == 0
+    legacy = tmp_path / "legacy"
+    prepare_output_dir(str(legacy), run_args=args)
+    _dataset_of_episode_zero(legacy, args, episode_id=2)  # the unkeyed simulator's second episode
+    with pytest.raises(
+        ResumeError,
+        match=r"record 0 of finished episode 0 has episode id 2, not its keyed id 1: the dataset was "
+        r"collected before episodes were keyed \(issue 32\) and cannot be resumed; pass another output_dir",
+    ):
+        plan_resume(legacy, run_identity(args), params)

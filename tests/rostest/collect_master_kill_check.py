@@ -8,6 +8,10 @@ second one has recorded (records on disk beyond the first episode's), kills rosm
 that the finished episode's records are intact and readable (Python and C++ readers). Then runs the same
 command again: it must cut the interrupted episode's records, fly the missing episode, and leave one complete
 dataset in which the first episode's records are byte-identical to those on disk before the resume.
+
+Keyed episodes (issue 32): the same two episodes flown straight, in one launch, give records identical (all
+fields but the wall-clock timings) to the resumed dataset's, episode 1 included, which the resumed run flew
+in a new launch right after the simulator's start: an episode's stamps, id and flight depend only on its key.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ import rostest
 import yaml
 from collect_crash_check import records_on_disk
 
+from quad_il.collection.compare import compare_records, dataset_records, records_digest
 from quad_il.collection.episodes import EpisodeLog, load_collect_config, plan_episode
 from quad_il.collection.launch_run import run_collect, start_collect, stop
 from quad_il.data.shards import load_dataset, open_dataset
@@ -125,6 +130,20 @@ class CollectMasterKillTest(unittest.TestCase):
             summary = yaml.safe_load((out / "collect_summary.yaml").read_text())
             self.assertTrue(summary["complete"], summary)
             self.assertEqual((summary["resumed_at_episode"], summary["episodes"]), (1, 2))
+            # Keyed: episode i has id i + 1 and starts at 1 s + (i + 1) * 1000 s of sim time.
+            self.assertEqual(first["episode_id"].tolist(), [1] * len(first))
+            self.assertEqual(second["episode_id"].tolist(), [2] * len(second))
+            self.assertTrue(np.all((first["sim_time_s"] >= 1001.0) & (first["sim_time_s"] < 2001.0)))
+            self.assertTrue(np.all((second["sim_time_s"] >= 2001.0) & (second["sim_time_s"] < 3001.0)))
+
+            # The same episodes flown straight in one launch: the same records (but the CPU timings).
+            run = run_collect(tmp / "straight", tmp / "straight.log", timeout_s=90.0, **LAUNCH_ARGS)
+            self.assertEqual(run.returncode, 0, run.log[-3000:])
+            resumed, straight = dataset_records(out), dataset_records(tmp / "straight")
+            problems = compare_records(resumed, straight)
+            self.assertEqual(problems, [], "\n".join(problems))
+            n0 = rows[0].samples
+            self.assertEqual(records_digest(resumed[n0:]), records_digest(straight[n0:]))
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
 

@@ -21,6 +21,7 @@
 #include <stdexcept>
 #include <thread>
 #include <unordered_map>
+#include <unordered_set>
 #include <utility>
 #include <vector>
 
@@ -228,7 +229,10 @@ struct DatasetWriter::Impl {
   // OpenMode::kAppend: what the dataset held before this writer (added to this writer's counts).
   RecordCounts base_counts;
   std::vector<uint64_t> base_dropped_seqs;
-  int64_t episode_id_offset = 0;
+  // The episode ids the dataset held before this writer: ids are kept as given (keyed episodes, issue 32), so
+  // an appended record with one of them would merge two flights under one (world_seed, episode_id). Read-only
+  // once the writer thread runs.
+  std::unordered_set<int64_t> earlier_episode_ids;
 
   // Loads a finalised dataset's manifest to continue it; throws std::runtime_error naming what prevents it.
   void ContinueDataset(const Manifest& m) {
@@ -272,7 +276,7 @@ struct DatasetWriter::Impl {
     episodes = m.episodes;
     for (size_t i = 0; i < episodes.size(); ++i) {
       episode_index.emplace(episodes[i].episode_id, i);
-      episode_id_offset = std::max(episode_id_offset, episodes[i].episode_id + 1);
+      earlier_episode_ids.insert(episodes[i].episode_id);
     }
     records_written = m.counts.written;
     base_counts = m.counts;
@@ -286,10 +290,6 @@ struct DatasetWriter::Impl {
     const int appended = previous == run_info.end() ? 1 : std::stoi(previous->second) + 1;
     if (previous != run_info.end()) run_info.erase(previous);
     run_info.emplace_back("appended_runs", std::to_string(appended));
-    run_info.erase(std::remove_if(run_info.begin(), run_info.end(),
-                                  [](const auto& kv) { return kv.first == "episode_id_offset"; }),
-                   run_info.end());
-    run_info.emplace_back("episode_id_offset", std::to_string(episode_id_offset));
     // The manifest's software_commit is this writer's: keep every commit that wrote records, in order.
     auto commits = std::find_if(run_info.begin(), run_info.end(),
                                 [](const auto& kv) { return kv.first == "software_commits"; });
@@ -486,7 +486,7 @@ struct DatasetWriter::Impl {
     h.magic = kRecordMagic;
     h.flags = 0;
     h.seq = seq;
-    h.episode_id = r.episode_id + episode_id_offset;
+    h.episode_id = r.episode_id;
     h.world_seed = r.world_seed;
     h.sim_time_s = r.sim_time_s;
     h.depth_stamp_s = r.depth_stamp_s;
@@ -597,6 +597,11 @@ RecordResult DatasetWriter::Record(const PlanRecord& record) {
   Impl& m = *impl_;
   RecordResult result;
   std::string why = ValidatePlanRecord(record, m.config);
+  if (why.empty() && !m.earlier_episode_ids.empty() && m.earlier_episode_ids.count(record.episode_id) != 0) {
+    why = "episode id " + std::to_string(record.episode_id) +
+          " names an episode the dataset held before this append (appended records keep their ids: a resumed "
+          "run must fly keyed episodes, docs/collect.md)";
+  }
   if (!why.empty()) {
     std::lock_guard<std::mutex> lock(m.mu);
     m.stats.rejected += 1;

@@ -565,7 +565,8 @@ TEST(DatasetWriter, DiskFullWhileWritingTheManifestLeavesTheOldOneAndNoTemporary
 
 // A resumed collection run (docs/collect.md, "Resuming"): the unfinished episode's records are cut, then a
 // second writer appends to the same dataset. The result reads as one dataset: shard indices, seqs and counts
-// continue, the first run's records are untouched, and the new episode ids do not collide with the old ones.
+// continue, the first run's records are untouched, and the appended records keep their (keyed) episode ids,
+// so the resumed dataset equals a straight run's; a record of an episode the dataset already held is refused.
 TEST(DatasetWriter, AppendContinuesATruncatedDatasetWithoutTouchingItsRecords) {
   cdc_test::TempDir tmp;
   cdc::WriterConfig config = cdc_test::SmallConfig(tmp / "ds");
@@ -603,8 +604,14 @@ TEST(DatasetWriter, AppendContinuesATruncatedDatasetWithoutTouchingItsRecords) {
   {
     cdc::DatasetWriter second(config, {}, cdc::OpenMode::kAppend);
     second.SetRunInfo("seeds", "1,2");
-    for (uint64_t i = 7; i < 14; ++i) {  // episode 1 flown again, numbered from 0 by a fresh simulator
-      gen.Generate(i - 7, &rec);
+    gen.Generate(0, &rec);  // a record of episode 0, which the dataset holds: refused, no seq used
+    const cdc::RecordResult refused = second.Record(rec.record);
+    EXPECT_EQ(refused.status, cdc::RecordStatus::kRejectedInvalid);
+    EXPECT_EQ(refused.reason,
+              "episode id 0 names an episode the dataset held before this append (appended records keep "
+              "their ids: a resumed run must fly keyed episodes, docs/collect.md)");
+    for (uint64_t i = 7; i < 14; ++i) {  // episode 1 flown again: the same (keyed) id as in a straight run
+      gen.Generate(i, &rec);
       const cdc::RecordResult r = second.Record(rec.record);
       ASSERT_TRUE(r.ok()) << r.reason;
       EXPECT_EQ(r.seq, i);
@@ -620,15 +627,28 @@ TEST(DatasetWriter, AppendContinuesATruncatedDatasetWithoutTouchingItsRecords) {
   EXPECT_EQ(m.status, cdc::DatasetStatus::kComplete);
   EXPECT_EQ(m.counts.submitted, 14u);
   EXPECT_EQ(m.counts.written, 14u);
+  EXPECT_EQ(m.counts.rejected, 1u);
   ASSERT_EQ(m.episodes.size(), 2u);
   EXPECT_EQ(m.episodes[0].episode_id, 0);
   EXPECT_EQ(m.episodes[0].records, 7u);
-  EXPECT_EQ(m.episodes[1].episode_id, 1);  // shifted past the dataset's largest id
+  EXPECT_EQ(m.episodes[1].episode_id, 1);  // kept: the id a straight run gives this episode
   EXPECT_EQ(m.episodes[1].records, 7u);
-  const auto offset = std::find_if(m.run_info.begin(), m.run_info.end(),
-                                   [](const auto& kv) { return kv.first == "episode_id_offset"; });
-  ASSERT_NE(offset, m.run_info.end());
-  EXPECT_EQ(offset->second, "1");
+  EXPECT_TRUE(std::none_of(m.run_info.begin(), m.run_info.end(),
+                           [](const auto& kv) { return kv.first == "episode_id_offset"; }));
+  // Record for record what a straight run writes (but the manifest's counts of the refused record).
+  cdc_test::TempDir straight_tmp;
+  cdc::WriterConfig straight_config = config;
+  straight_config.output_dir = straight_tmp / "ds";
+  {
+    cdc::DatasetWriter straight(straight_config);
+    for (uint64_t i = 0; i < 14; ++i) {
+      gen.Generate(i, &rec);
+      ASSERT_TRUE(straight.Record(rec.record).ok());
+    }
+    ASSERT_TRUE(straight.Finalize().ok);
+  }
+  const cdc::DatasetReader straight_reader(straight_config.output_dir);
+  ASSERT_EQ(straight_reader.num_records(), 14u);
   const auto commits = std::find_if(m.run_info.begin(), m.run_info.end(),
                                     [](const auto& kv) { return kv.first == "software_commits"; });
   ASSERT_NE(commits, m.run_info.end());
@@ -641,6 +661,20 @@ TEST(DatasetWriter, AppendContinuesATruncatedDatasetWithoutTouchingItsRecords) {
       EXPECT_EQ(d.head.episode_id, i < 7 ? 0 : 1);
     }
   }
+  // The records (not their shard files: a resumed dataset's shards are cut where the interruption was) equal
+  // the straight run's byte for byte.
+  std::vector<std::vector<uint8_t>> appended_bytes, straight_bytes;
+  for (const cdc::ShardReader& s : reader.shards()) {
+    for (uint64_t k = 0; k < s.num_records(); ++k) {
+      appended_bytes.emplace_back(s.RecordBytes(k), s.RecordBytes(k) + s.layout().record_size);
+    }
+  }
+  for (const cdc::ShardReader& s : straight_reader.shards()) {
+    for (uint64_t k = 0; k < s.num_records(); ++k) {
+      straight_bytes.emplace_back(s.RecordBytes(k), s.RecordBytes(k) + s.layout().record_size);
+    }
+  }
+  EXPECT_EQ(appended_bytes, straight_bytes);
 }
 
 TEST(DatasetWriter, AppendRefusesADatasetItCannotContinueNamingWhy) {

@@ -107,7 +107,17 @@ void PlanCollector::OnPlan(const PlanRecord& plan) {
   }
   const auto t0 = std::chrono::steady_clock::now();
   FillPlanRecord(plan, context_, &record_);
-  const cpp_data_collector::RecordResult rr = writer_->Record(record_);
+  Write(record_, t0);
+}
+
+void PlanCollector::Write(const cpp_data_collector::PlanRecord& record) {
+  if (!writer_) throw std::logic_error("PlanCollector::Write: the collector is not started (Start first)");
+  Write(record, std::chrono::steady_clock::now());
+}
+
+void PlanCollector::Write(const cpp_data_collector::PlanRecord& record,
+                          std::chrono::steady_clock::time_point t0) {
+  const cpp_data_collector::RecordResult rr = writer_->Record(record);
   const double us = std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count();
   if (record_us_.size() < record_us_.capacity()) record_us_.push_back(us);
   if (!rr.ok() && warn_) {
@@ -117,6 +127,12 @@ void PlanCollector::OnPlan(const PlanRecord& plan) {
               rr.reason + " (written " + std::to_string(s.written) + ", dropped " +
               std::to_string(s.dropped) + ", rejected " + std::to_string(s.rejected) + ")");
   }
+}
+
+std::string PlanCollector::writer_error() const {
+  if (!writer_) return "";
+  const cpp_data_collector::WriterStats s = writer_->stats();
+  return s.failed ? (s.last_error.empty() ? std::string("failed") : s.last_error) : "";
 }
 
 std::string PlanCollector::StatsLine() const {

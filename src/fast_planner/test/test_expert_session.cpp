@@ -7,6 +7,7 @@
 #include <limits>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "fast_planner/expert_session.h"
 #include "test_util.h"
@@ -133,6 +134,80 @@ TEST(ExpertSession, ANewEpisodeForgetsTheLabellersGoal) {
   EXPECT_TRUE(s.StartEpisode(1.0).empty());
   EXPECT_FALSE(s.labeller().goal().has_value());
   EXPECT_TRUE(s.odometry().empty());
+}
+
+// Everything a session decided, in order: transitions, plans (traj_id, start, knots, control points).
+struct Trace {
+  std::vector<std::string> transitions;
+  std::vector<int64_t> traj_ids;
+  std::vector<double> start_times_s;
+  std::vector<std::vector<double>> knots;
+  std::vector<Eigen::MatrixXd> ctrl_pts;
+  void Add(const ReplannerOutput& out) {
+    transitions.insert(transitions.end(), out.transitions.begin(), out.transitions.end());
+    if (!out.trajectory) return;
+    traj_ids.push_back(out.trajectory->traj_id);
+    start_times_s.push_back(out.trajectory->start_time_s);
+    if (out.trajectory->spline) {
+      knots.push_back(out.trajectory->spline->knots());
+      ctrl_pts.push_back(out.trajectory->spline->ctrl_pts());
+    }
+  }
+};
+
+// One episode in flight mode: hovering at p, a box ahead, the goal given at the 10th odometry, a depth frame
+// (rendered exactly) every 6th odometry, `steps` odometry periods from t0_s.
+Trace FlyEpisode(ExpertSession* s, double t0_s, const Eigen::Vector3d& p, const test::Aabb& box,
+                 const Eigen::Vector3d& goal, int steps) {
+  Trace trace;
+  for (int i = 0; i < steps; ++i) {
+    quad_core::VehicleState o;
+    o.t_s = t0_s + i * kPeriodS;
+    o.p_world_body = p;
+    trace.Add(s->OnOdometry(o));
+    if (i == 10) {
+      ReplannerOutput out;
+      EXPECT_EQ(s->SetGoal(goal, o.t_s, &out), "");
+      trace.Add(out);
+    }
+    if (i % 6 == 0) {
+      auto frame = std::make_shared<DepthFrame>(
+          test::RenderDepth({box}, p + kMount.p_body_camera, test::CameraLookingAlongX(), 80, 60));
+      frame->stamp_s = o.t_s;
+      EXPECT_TRUE(s->SetCameraPose(kMount, frame.get()));
+      trace.Add(s->OnDepth(frame).flight);
+    }
+  }
+  return trace;
+}
+
+// Keyed episodes (issue 32): collect.launch keeps the planner across episodes, so an episode's plans must not
+// depend on the episodes flown before it. A session that flew an episode and then starts a new one plans it
+// exactly as a fresh session does (the fresh node's first status only names the episode: no StartEpisode):
+// the same transitions, traj_ids, knots and control points, compared bit for bit.
+TEST(ExpertSession, ANewEpisodeIsPlannedBitIdenticallyToAFreshSessionsFirstEpisode) {
+  ExpertSession used(DepthConfig(), false), fresh(DepthConfig(), false);
+  const Trace before = FlyEpisode(&used, 1.0, Eigen::Vector3d(3.0, 2.0, 1.0),
+                                  test::Aabb{Eigen::Vector3d(6, 0, 0), Eigen::Vector3d(7, 4, 3)},
+                                  Eigen::Vector3d(12.0, 8.0, 2.0), 240);
+  ASSERT_FALSE(before.traj_ids.empty());  // the previous episode planned (and counted traj_ids)
+  const double t0 = 2001.0;
+  EXPECT_TRUE(used.StartEpisode(t0).empty());
+  const Eigen::Vector3d p(2.0, 5.0, 1.5), goal(15.0, 5.0, 1.5);
+  const test::Aabb box{Eigen::Vector3d(6, 3.5, 0), Eigen::Vector3d(7, 6.5, 3)};
+  const Trace a = FlyEpisode(&used, t0, p, box, goal, 240);
+  const Trace b = FlyEpisode(&fresh, t0, p, box, goal, 240);
+  ASSERT_GE(a.traj_ids.size(), 2u);
+  EXPECT_EQ(a.traj_ids.front(), 1);
+  EXPECT_EQ(a.transitions, b.transitions);
+  EXPECT_EQ(a.traj_ids, b.traj_ids);
+  EXPECT_EQ(a.start_times_s, b.start_times_s);
+  EXPECT_EQ(a.knots, b.knots);
+  ASSERT_EQ(a.ctrl_pts.size(), b.ctrl_pts.size());
+  for (size_t i = 0; i < a.ctrl_pts.size(); ++i) {
+    EXPECT_TRUE(a.ctrl_pts[i].rows() == b.ctrl_pts[i].rows() && a.ctrl_pts[i] == b.ctrl_pts[i])
+        << "plan " << i;
+  }
 }
 
 }  // namespace

@@ -174,6 +174,55 @@ TEST_F(TrackerManagerTest, NewEpisodeAbortsTheGoalAndReAnchorsOnTheFirstOdometry
   EXPECT_TRUE(Aborted(&m_).empty());
 }
 
+bool SameBits(const ControlStep& a, const ControlStep& b) {
+  const So3Command &x = a.command, &y = b.command;
+  const PositionReference &r = a.ref, &q = b.ref;
+  return x.force_world_N == y.force_world_N && x.q_world_des.coeffs() == y.q_world_des.coeffs() &&
+         x.w_body_des_radps == y.w_body_des_radps && x.kR == y.kR && x.kOm == y.kOm &&
+         x.enable_motors == y.enable_motors && r.p_world == q.p_world && r.v_world == q.v_world &&
+         r.a_world == q.a_world && r.j_world == q.j_world && r.yaw_rad == q.yaw_rad &&
+         r.yaw_rate_radps == q.yaw_rate_radps && a.status == b.status;
+}
+
+// Keyed episodes (issue 32): collect.launch keeps the tracker across episodes, so an episode's commands must
+// not depend on the episodes flown before it. A manager that flew an episode (goto, B-spline goal running)
+// and then gets a new episode's status and odometry answers with bit-identical commands and references to a
+// fresh manager given the same status (its first) and odometry, through a goto and a B-spline goal.
+TEST_F(TrackerManagerTest, ANewEpisodeIsFlownBitIdenticallyToAFreshManagersFirstEpisode) {
+  FlyInEpisodeOne();
+  const double t0 = 2001.0;  // the keyed episode's start, long after the previous one
+  EXPECT_NE(m_.OnEpisodeStatus(2, t0), "");
+  TrackerManager fresh(TrackerConfig{}, kMass, kG, kMaxThrust);
+  EXPECT_EQ(fresh.OnEpisodeStatus(2, t0), "");
+  Flight used(&m_), first(&fresh);
+  int steps = 0;
+  const auto fly = [&](double seconds) {
+    for (double end = used.t() + seconds - 0.5 * kDt; used.t() < end; ++steps) {
+      const ControlStep a = used.Step(), b = first.Step();
+      ASSERT_TRUE(SameBits(a, b)) << "step " << steps << " at t = " << used.t() << ": ref "
+                                  << a.ref.p_world.transpose() << " vs " << b.ref.p_world.transpose();
+    }
+  };
+  const ControlStep a = used.Start(t0, new_start_, new_yaw_), b = first.Start(t0, new_start_, new_yaw_);
+  EXPECT_NE(a.reanchored, "");  // the used manager re-anchors, the fresh one anchors at start-up
+  ASSERT_TRUE(SameBits(a, b));
+  fly(0.5);
+  const Eigen::Vector3d up = new_start_ + Eigen::Vector3d(0, 0, 1.5);
+  ASSERT_EQ(m_.Goto(up, new_yaw_ + 0.4, 0.0, 0.0), "");
+  ASSERT_EQ(fresh.Goto(up, new_yaw_ + 0.4, 0.0, 0.0), "");
+  fly(5.0);
+  ASSERT_LT((used.p() - up).norm(), 1e-3);
+  const Eigen::Vector3d p = used.p();
+  const BsplineGoalSpec goal = Line(p, p + Eigen::Vector3d(4, -3, 0.5), used.t() + 0.1, 5.0);
+  ASSERT_EQ(m_.AddGoal(9, goal, used.t()), "");
+  ASSERT_EQ(fresh.AddGoal(9, goal, first.t()), "");
+  fly(7.0);
+  EXPECT_EQ(m_.active_tracker(), "bspline");
+  EXPECT_EQ(fresh.active_tracker(), "bspline");
+  EXPECT_GT((used.p() - p).norm(), 4.5);  // the goal (5.02 m long) was flown
+  EXPECT_EQ(m_.controller().integral_mps2(), fresh.controller().integral_mps2());
+}
+
 TEST_F(TrackerManagerTest, OdometryJumpAloneReAnchorsAndAbortsTheGoal) {
   FlyInEpisodeOne();
   // A step below the limit is ordinary motion.

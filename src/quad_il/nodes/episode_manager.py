@@ -85,6 +85,9 @@ class EpisodeManager:
         self.reset_srv = rospy.ServiceProxy("sim/reset", ResetEpisode)
         self.log = EpisodeLog(f"{self.cfg.output_dir}/episodes.csv")
         self.resumed_at = 0  # finished episodes found in episodes.csv at start (a resumed run)
+        # Sim time flown in episodes (keyed episodes start 1000 s apart: the gaps between them are not flown).
+        self.episode_start_s: float | None = None
+        self.sim_s = 0.0
 
     # ---- subscriber threads ----
     def _on_status(self, msg: EpisodeStatus) -> None:
@@ -155,6 +158,7 @@ class EpisodeManager:
     # ---- one episode ----
     def run_episode(self, index: int, samples_before: int) -> EpisodeOutcome:
         spec = plan_episode(self.cfg, index)
+        self.episode_start_s = None
 
         def outcome(kind: str, reason: str, t_start: float, t_now: float, records: int) -> EpisodeOutcome:
             return EpisodeOutcome(index, spec.seed, kind, reason, max(0.0, t_now - t_start), records)
@@ -178,7 +182,16 @@ class EpisodeManager:
         if self.cfg.restart_tracker and not self.lockstep:
             # Not holding the simulator: the new tracker must only see the new episode's odometry.
             old_tracker = self._kill_tracker()
-        resp = self.reset_srv(seed=spec.seed, world_file="", start=start, goal=Point(*spec.goal_world))
+        # Keyed by the episode's index in the run (issue 32): its stamps and id, so its flight and records,
+        # are the same whether the run flew the episodes before it in this launch or was resumed.
+        resp = self.reset_srv(
+            seed=spec.seed,
+            world_file="",
+            start=start,
+            goal=Point(*spec.goal_world),
+            keyed=True,
+            episode_index=index,
+        )
         self.frames.held = None  # the reset released the held frame
         if not resp.success:
             return outcome("reset_failed", resp.message, 0.0, 0.0, 0)
@@ -188,6 +201,7 @@ class EpisodeManager:
             f"status of episode {episode_id}",
         )
         t0 = self._status.header.stamp.to_sec()
+        self.episode_start_s = t0
         if self.cfg.restart_tracker and not self.lockstep:
             self._wait_tracker(old_tracker)
         # Take-off at the first frame of the episode.
@@ -270,6 +284,8 @@ class EpisodeManager:
                     rospy.logerr(f"episode_manager: episode {finished}: {exc}; stopping the run")
                     code = 1
                     break
+                if self.episode_start_s is not None:
+                    self.sim_s += max(0.0, self.frames.last_frame_s - self.episode_start_s)
                 self.log.append(out)
                 finished += 1
                 total += out.samples
@@ -290,8 +306,7 @@ class EpisodeManager:
 
     def _write_summary(self, finished: int, samples: int, counts: dict[str, int], wall_s: float) -> None:
         """<output_dir>/collect_summary.yaml: what the run did and how fast (sim seconds per wall second)."""
-        first = self.frames.first_frame_s
-        sim_s = (self.frames.last_frame_s - first) if first is not None else 0.0
+        sim_s = self.sim_s
         stop_done, _ = StopCondition(self.cfg).done(finished, samples)
         summary = {
             # the run reached its stop condition (false after an interruption: resume:=true continues it)

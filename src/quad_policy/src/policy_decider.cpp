@@ -260,6 +260,8 @@ Decision PolicyDecider::Decide(const DecisionInputs& in, std::vector<float> y, c
       std::vector<HypothesisPlan> alternatives;
       if (yaw == 0.0) {
         alternatives.assign(plans.begin() + 1, plans.end());
+      } else if (!ask) {
+        break;  // no network to ask (the engine's Gymnasium environments answer one goal per frame)
       } else {
         ++d.recovery_tries;
         alternatives = OrderedPlans(ask(TurnedGoal(in.state.p_world_body, in.goal_world, yaw)), meta_);

@@ -194,6 +194,45 @@ std::vector<float> TorchPolicy::Run(const std::vector<float>& depth_x, const Sta
   return ToVector(y);
 }
 
+std::vector<float> TorchPolicy::RunBatch(const std::vector<float>& depth_x, const std::vector<StateVector>& state_x,
+                                         const std::vector<VehicleState>* states,
+                                         const std::vector<Eigen::Vector3d>* goals) const {
+  const PolicyMeta& m = impl_->meta;
+  const int64_t n = static_cast<int64_t>(state_x.size());
+  const int64_t per = static_cast<int64_t>(m.input_height) * m.input_width;
+  if (static_cast<int64_t>(depth_x.size()) != n * per) {
+    throw std::invalid_argument("batched depth input has " + std::to_string(depth_x.size()) + " values, expected " +
+                                std::to_string(n) + " x " + std::to_string(per));
+  }
+  if (n == 0) return {};
+  if (!impl_->has_forward_net) {  // older exports encode the state themselves: one pass per sample
+    if (states == nullptr || goals == nullptr || states->size() != state_x.size() || goals->size() != state_x.size()) {
+      throw std::logic_error(impl_->path + ": without forward_net a batch needs each sample's state and goal");
+    }
+    std::vector<float> out;
+    out.reserve(static_cast<size_t>(n * m.network_output_dim()));
+    for (int64_t i = 0; i < n; ++i) {
+      const std::vector<float> d(depth_x.begin() + i * per, depth_x.begin() + (i + 1) * per);
+      const std::vector<float> y = Run(d, state_x[static_cast<size_t>(i)], (*states)[static_cast<size_t>(i)],
+                                       (*goals)[static_cast<size_t>(i)]);
+      out.insert(out.end(), y.begin(), y.end());
+    }
+    return out;
+  }
+  c10::InferenceMode guard;
+  const at::Tensor depth = torch::from_blob(const_cast<float*>(depth_x.data()),
+                                            {n, 1, m.input_height, m.input_width}, torch::kFloat32);
+  const at::Tensor s =
+      torch::from_blob(const_cast<float*>(state_x.front().data()), {n, kStateDim}, torch::kFloat32);
+  const at::Tensor y = impl_->module.get_method("forward_net")({depth, s}).toTensor();
+  if (y.numel() != n * m.network_output_dim()) {
+    throw std::runtime_error(impl_->path + ": the network returned " + std::to_string(y.numel()) +
+                             " values for a batch of " + std::to_string(n) + ", the metadata declares " +
+                             std::to_string(m.network_output_dim()) + " per sample");
+  }
+  return ToVector(y);
+}
+
 std::vector<float> TorchPolicy::FilePreprocessDepth(const DepthImageView& depth) const {
   c10::InferenceMode guard;
   return ToVector(impl_->module.get_method("preprocess_depth")({DepthTensor(depth)}).toTensor());

@@ -69,7 +69,7 @@ OrientedBox Simulator::VehicleBox() const {
 }
 
 void Simulator::Reset(const World& world, const Eigen::Vector3d& p_start_world, double yaw_start_rad,
-                      const Eigen::Vector3d& goal_world) {
+                      const Eigen::Vector3d& goal_world, std::optional<uint32_t> episode_id) {
   if (!p_start_world.allFinite() || !std::isfinite(yaw_start_rad) || !goal_world.allFinite()) {
     throw std::invalid_argument("Simulator::Reset: start " + Vec(p_start_world) + ", yaw " +
                                 std::to_string(yaw_start_rad) + " or goal " + Vec(goal_world) +
@@ -131,7 +131,7 @@ void Simulator::Reset(const World& world, const Eigen::Vector3d& p_start_world, 
   num_rejected_commands_ = 0;
   boxes_in_contact_.clear();
   episode_ = EpisodeState();
-  episode_.episode_id = next_episode_id_++;
+  episode_.episode_id = episode_id ? *episode_id : next_episode_id_++;
   episode_.active = true;
   episode_.reason = "running";
   // The noise stream depends on the configured seed and the world's seed only, so equal episodes are

@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <iomanip>
+#include <sstream>
 #include <stdexcept>
 #include <string>
 
@@ -32,6 +34,52 @@ TimeKeeper::TimeKeeper(const SimConfig& config, double wall_now_s)
                           config.physics_dt_s))),
       stats_wall_s_(wall_now_s) {
   if (mode_ == TimeMode::kRealTimeFactor) RequirePositive(factor_, "time.real_time_factor");
+}
+
+namespace {
+
+std::string Seconds(uint64_t ns) {
+  std::ostringstream s;
+  s << std::fixed << std::setprecision(3) << quad_core::StampSeconds(ns);
+  return s.str();
+}
+
+// "keyed episode N" when ns is a keyed episode's start, else "an episode".
+std::string EpisodeAt(uint64_t ns) {
+  using quad_core::kEpisodeSpacingNs;
+  using quad_core::kEpisodeTimeBaseNs;
+  if (ns > kEpisodeTimeBaseNs && (ns - kEpisodeTimeBaseNs) % kEpisodeSpacingNs == 0) {
+    return "keyed episode " + std::to_string((ns - kEpisodeTimeBaseNs) / kEpisodeSpacingNs - 1);
+  }
+  return "an episode";
+}
+
+}  // namespace
+
+void TimeKeeper::StartEpisodeAt(uint64_t ns) {
+  if (ns <= now_ns()) {
+    throw std::invalid_argument(EpisodeAt(ns) + " starts at " + Seconds(ns) +
+                                " s, not after the current sim time " + Seconds(now_ns()) +
+                                " s (an episode longer than the " +
+                                std::to_string(quad_core::kEpisodeSpacingNs / 1000000000ULL) +
+                                " s spacing, or keyed episodes flown out of order?)");
+  }
+  if ((ns - kTimeBaseNs) % dt_ns_ != 0) {
+    throw std::invalid_argument(EpisodeAt(ns) + " start " + std::to_string(ns) +
+                                " ns is not a whole number of physics steps (" + std::to_string(dt_ns_) +
+                                " ns) after the first stamp");
+  }
+  total_steps_ = (ns - kTimeBaseNs) / dt_ns_;
+}
+
+std::optional<uint32_t> TimeKeeper::BeginEpisode(const EpisodeRequest& request) {
+  if (!request.keyed) {
+    NewEpisode();
+    return std::nullopt;
+  }
+  const uint32_t id = quad_core::EpisodeIdOf(request.episode_index);  // checks the index's range
+  StartEpisodeAt(quad_core::EpisodeStartNs(request.episode_index));
+  return id;
 }
 
 void TimeKeeper::Anchor(double wall_now_s) {

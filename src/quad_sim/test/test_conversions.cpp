@@ -57,6 +57,16 @@ TEST(Conversions, ResetRequestKeepsTheOrientationAsGiven) {
   EXPECT_EQ(e.start_world_m.x(), -5.0);
   EXPECT_EQ(e.q_start_wxyz, Eigen::Vector4d(0.0, 0.0, 0.0, 1.0));  // w, x, y, z
   EXPECT_EQ(e.goal_world_m.y(), 3.0);
+  EXPECT_FALSE(e.keyed);  // the message default: an unkeyed episode
+}
+
+TEST(Conversions, ResetRequestPassesTheEpisodeKey) {
+  quad_msgs::ResetEpisode::Request r;
+  r.keyed = true;
+  r.episode_index = 4000000;
+  const quad_sim::EpisodeRequest e = FromMsg(r);
+  EXPECT_TRUE(e.keyed);
+  EXPECT_EQ(e.episode_index, 4000000u);
 }
 
 TEST(Conversions, WorldMarkersStatusAndCloudDescribeTheSimulator) {

@@ -168,6 +168,51 @@ TEST(Reset, StartBelowTheGroundOrNonFiniteIsAClearError) {
                std::invalid_argument);
 }
 
+TEST(Reset, EpisodeIdsAreTheGivenKeyedOnesOrUnkeyedOnesFromTheirOwnBase) {
+  Simulator sim(quad_sim_test::DefaultSimConfig());
+  const Eigen::Vector3d start(0, 0, 1), goal(9, 9, 9);
+  sim.Reset(World(), start, 0.0, goal);  // unkeyed: never equal to a keyed id (index + 1)
+  EXPECT_EQ(sim.episode().episode_id, quad_core::kUnkeyedEpisodeIdBase);
+  sim.Reset(World(), start, 0.0, goal, quad_core::EpisodeIdOf(4));
+  EXPECT_EQ(sim.episode().episode_id, 5u);
+  EXPECT_TRUE(sim.episode().active);
+  sim.Reset(World(), start, 0.0, goal, quad_core::EpisodeIdOf(0));  // the id is the caller's, in any order
+  EXPECT_EQ(sim.episode().episode_id, 1u);
+  // A refused reset uses no id; the unkeyed count goes on after keyed episodes.
+  EXPECT_THROW(sim.Reset(World(), Eigen::Vector3d(0, 0, kNaN), 0.0, goal), std::invalid_argument);
+  sim.Reset(World(), start, 0.0, goal);
+  EXPECT_EQ(sim.episode().episode_id, quad_core::kUnkeyedEpisodeIdBase + 1);
+}
+
+// A keyed episode's flight does not depend on what the simulator flew before it: the same world, start and
+// commands after a long previous episode give bit-identical states and depth to a fresh simulator's.
+TEST(Reset, AnEpisodeFlownAfterAnotherEqualsTheSameEpisodeOfAFreshSimulator) {
+  const quad_sim::SimConfig c = quad_sim_test::DefaultSimConfig();
+  const World world = quad_sim::GenerateWorld(c.world_gen, 7);
+  const auto fly = [](Simulator* sim, double thrust_scale, int steps) {
+    quad_sim::So3Command cmd;
+    cmd.force_world_N = Eigen::Vector3d(0.2, -0.1, thrust_scale * sim->config().vehicle.HoverThrustN());
+    cmd.enable_motors = true;
+    for (int i = 0; i < steps; ++i) {
+      if (sim->OdometryDue()) ASSERT_TRUE(sim->SetSo3Command(cmd).ok());
+      sim->Step();
+    }
+  };
+  Simulator used(c), fresh(c);
+  used.Reset(world, c.start_m, 0.3, c.goal_m, quad_core::EpisodeIdOf(0));
+  fly(&used, 1.3, 1500);
+  used.Reset(world, c.start_m, c.start_yaw_rad, c.goal_m, quad_core::EpisodeIdOf(1));
+  fresh.Reset(world, c.start_m, c.start_yaw_rad, c.goal_m, quad_core::EpisodeIdOf(1));
+  fly(&used, 1.1, 800);
+  fly(&fresh, 1.1, 800);
+  EXPECT_TRUE(SameState(used.state(), fresh.state()));
+  EXPECT_EQ(used.step_count(), fresh.step_count());
+  EXPECT_EQ(used.episode().episode_id, fresh.episode().episode_id);
+  const quad_core::DepthImage a = used.RenderDepth(), b = fresh.RenderDepth();
+  ASSERT_EQ(a.depth_m.size(), b.depth_m.size());
+  EXPECT_EQ(std::memcmp(a.depth_m.data(), b.depth_m.data(), a.depth_m.size() * sizeof(float)), 0);
+}
+
 TEST(Schedule, OdometryAt200HzAndDepthAt30Hz) {
   Simulator sim(quad_sim_test::DefaultSimConfig());
   sim.Reset(World(), Eigen::Vector3d(0, 0, 0.125), 0.0, Eigen::Vector3d(9, 9, 9));

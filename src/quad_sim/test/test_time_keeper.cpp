@@ -9,7 +9,9 @@
 
 #include <cmath>
 #include <limits>
+#include <optional>
 #include <stdexcept>
+#include <string>
 
 namespace quad_sim {
 namespace {
@@ -35,6 +37,82 @@ TEST(TimeKeeper, SimTimeStartsAtOneSecondAndAdvancesOnlyByStepsAndEpisodes) {
   EXPECT_EQ(t.now_ns(), 1012000000ULL);
   EXPECT_EQ(t.total_steps(), 12u);
   EXPECT_DOUBLE_EQ(t.sim_s(), 0.012);
+}
+
+TEST(TimeKeeper, AKeyedEpisodeStartsAtItsKeysTimeWhateverWasFlownBefore) {
+  TimeKeeper straight(WithMode(TimeMode::kLockstep), 0.0);
+  TimeKeeper resumed(WithMode(TimeMode::kLockstep), 0.0);
+  for (int i = 0; i < 4321; ++i) straight.Stepped();  // an episode flown before
+  straight.NewEpisode();
+  EpisodeRequest r;
+  r.keyed = true;
+  r.episode_index = 1;
+  EXPECT_EQ(straight.BeginEpisode(r), std::optional<uint32_t>(2u));
+  EXPECT_EQ(resumed.BeginEpisode(r), std::optional<uint32_t>(2u));
+  EXPECT_EQ(straight.now_ns(), 2001000000000ULL);  // 1 s + (1 + 1) * 1000 s
+  EXPECT_EQ(straight.now_ns(), quad_core::EpisodeStartNs(1));
+  EXPECT_EQ(straight.total_steps(), resumed.total_steps());
+  EXPECT_EQ(straight.sim_s(), resumed.sim_s());
+  // The clock schedule continues from the start's step count, the same in both.
+  EXPECT_EQ(straight.ClockDue(false, false), resumed.ClockDue(false, false));
+  straight.Stepped();
+  EXPECT_EQ(straight.now_ns(), 2001001000000ULL);
+}
+
+TEST(TimeKeeper, AnUnkeyedEpisodeStartsOneOdometryPeriodLaterWithTheSimulatorsNextId) {
+  TimeKeeper t(WithMode(TimeMode::kLockstep), 0.0);
+  EXPECT_EQ(t.BeginEpisode(EpisodeRequest()), std::nullopt);
+  EXPECT_EQ(t.now_ns(), 1005000000ULL);
+}
+
+TEST(TimeKeeper, AKeyedStartNotAfterTheCurrentTimeIsRefusedWithTheReasonAndChangesNothing) {
+  TimeKeeper t(WithMode(TimeMode::kLockstep), 0.0);
+  EpisodeRequest r;
+  r.keyed = true;
+  r.episode_index = 3;
+  ASSERT_TRUE(t.BeginEpisode(r));
+  for (int i = 0; i < 1500; ++i) t.Stepped();
+  const uint64_t before = t.now_ns();
+  for (uint32_t index : {3u, 2u, 0u}) {
+    r.episode_index = index;
+    try {
+      t.BeginEpisode(r);
+      FAIL() << "keyed episode " << index << " after episode 3 was accepted";
+    } catch (const std::invalid_argument& e) {
+      const std::string want = "keyed episode " + std::to_string(index) + " starts at " +
+                               std::to_string(1 + (index + 1) * 1000) + ".000 s, not after the current sim " +
+                               "time 4002.500 s (an episode longer than the 1000 s spacing";
+      EXPECT_NE(std::string(e.what()).find(want), std::string::npos) << e.what();
+    }
+    EXPECT_EQ(t.now_ns(), before);
+  }
+  EXPECT_THROW(t.StartEpisodeAt(before), std::invalid_argument);  // equal is not after
+  r.episode_index = 4;
+  EXPECT_EQ(t.BeginEpisode(r), std::optional<uint32_t>(5u));
+}
+
+TEST(TimeKeeper, AKeyedIndexOutOfRangeOrAStartBetweenStepsIsRefused) {
+  TimeKeeper t(WithMode(TimeMode::kLockstep), 0.0);
+  EpisodeRequest r;
+  r.keyed = true;
+  r.episode_index = quad_core::kMaxEpisodeIndex + 1;
+  try {
+    t.BeginEpisode(r);
+    FAIL();
+  } catch (const std::invalid_argument& e) {
+    EXPECT_EQ(std::string(e.what()), "episode index 4000001 outside [0, 4000000]");
+  }
+  EXPECT_EQ(t.now_ns(), 1000000000ULL);
+  try {
+    t.StartEpisodeAt(2000000500ULL);  // half a physics step
+    FAIL();
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("2000000500 ns is not a whole number of physics steps (1000000 ns)"),
+              std::string::npos)
+        << e.what();
+  }
+  t.StartEpisodeAt(2000000000ULL);
+  EXPECT_EQ(t.now_ns(), 2000000000ULL);
 }
 
 TEST(TimeKeeper, ClockIsDueEveryClockPeriodAndAtEveryFrame) {

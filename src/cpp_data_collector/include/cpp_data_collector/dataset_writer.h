@@ -68,10 +68,12 @@ struct WriterHooks {
 
 // kCreate: output_dir must not hold a dataset yet. kAppend: continue the finalised (complete or recovered)
 // dataset in output_dir, or start one if it has none; used by a resumed collection run (docs/collect.md,
-// "Resuming"). Appending continues the shard indices, seqs, counts and episode list; the new records'
-// episode ids are shifted by (largest episode id already in the dataset) + 1, because a restarted simulator
-// numbers its episodes from the start again, so that (world_seed, episode_id) still names one flight. The
-// shift is stored in the manifest's run_info (episode_id_offset; appended_runs counts the appends).
+// "Resuming"). Appending continues the shard indices, seqs, counts and episode list (appended_runs in the
+// manifest's run_info counts the appends). Episode ids are kept as given: a resumed run flies keyed episodes
+// (quad_core/episode_key.h, issue 32), whose ids are index + 1 in every launch, so the appended episodes have
+// the ids a straight run would have given them. A record whose episode id names an episode the dataset held
+// before the append is rejected (kRejectedInvalid, with the reason), so (world_seed, episode_id) still names
+// one flight.
 enum class OpenMode { kCreate, kAppend };
 
 class DatasetWriter {

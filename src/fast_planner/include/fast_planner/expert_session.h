@@ -29,6 +29,12 @@ class ExpertSession {
 
   // Records every successful plan from now on (the collector is the manager's observer).
   void SetCollector(std::shared_ptr<PlanCollector> collector);
+  // Any other observer of the successful plans instead (the rollout engine's per-episode record buffer); the
+  // collector's map update time is then not set.
+  void SetPlanObserver(std::shared_ptr<PlanObserver> observer) {
+    collector_.reset();
+    replanner_.manager().SetObserver(std::move(observer));
+  }
 
   bool labeller_mode() const { return label_every_frame_; }
   const PlannerConfig& config() const { return cfg_; }

@@ -10,6 +10,7 @@
 #include <quad_core/camera.h>
 #include <quad_core/vehicle_state.h>
 
+#include <chrono>
 #include <cstdint>
 #include <functional>
 #include <memory>
@@ -68,6 +69,10 @@ class PlanCollector : public PlanObserver {
 
   void OnPlan(const PlanRecord& plan) override;
 
+  // Writes a record already filled (FillPlanRecord), e.g. one the rollout engine buffered during an episode;
+  // the same checks and warnings as OnPlan's. The collector must be started.
+  void Write(const cpp_data_collector::PlanRecord& record);
+
   // One line of writer statistics (also the not-recorded count and Record()'s cost).
   std::string StatsLine() const;
 
@@ -79,10 +84,13 @@ class PlanCollector : public PlanObserver {
   Finalized Finalize();
 
   uint64_t not_recorded() const { return not_recorded_; }
+  // The writer's I/O error ("" while it works or before it started).
+  std::string writer_error() const;
   const cpp_data_collector::WriterConfig& config() const { return config_; }
 
  private:
   std::string RecordCostText() const;
+  void Write(const cpp_data_collector::PlanRecord& record, std::chrono::steady_clock::time_point t0);
 
   cpp_data_collector::WriterConfig config_;
   std::vector<std::pair<std::string, std::string>> run_info_;

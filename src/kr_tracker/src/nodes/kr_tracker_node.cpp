@@ -121,6 +121,10 @@ class TrackerNode {
 
   void OnStatus(const quad_msgs::EpisodeStatus::ConstPtr& msg) {
     const ros::Time start = msg->sim_time.isZero() ? msg->header.stamp : msg->sim_time;
+    // A keyed episode starts up to 1000 s of sim time after the previous one's last odometry (issue 32): its
+    // odometry is due from its start, not late, so /clock's jump must not make the watchdog answer the new
+    // episode's first odometry stamp with a hold command before this node has seen that odometry.
+    if (manager_.episode_id() != msg->episode_id) last_odom_rx_ = std::max(last_odom_rx_, start);
     const std::string what = manager_.OnEpisodeStatus(msg->episode_id, start.toSec());
     if (!what.empty()) ROS_INFO("kr_tracker: %s", what.c_str());
     ProcessEvents();

@@ -147,7 +147,8 @@ class PolicyDecider {
                 const RefusalConfig& refusal, const RecoveryConfig& recovery = {},
                 const KeepingConfig& keeping = {});
 
-  // y: the network's output for in.goal_world; ask: the network for a turned goal (the recovery). Throws
+  // y: the network's output for in.goal_world; ask: the network for a turned goal (the recovery; empty: the
+  // turned goals are not tried, e.g. in the engine's Gymnasium environments). Throws
   // std::invalid_argument on invalid inputs (non-finite stamp, odometry or goal, empty depth, wrong output
   // length). Decisions depend on the ones before through the trajectory sent last (KeepingConfig); Reset()
   // forgets it.

@@ -20,6 +20,11 @@ struct EpisodeRequest {
   Eigen::Vector3d start_world_m = Eigen::Vector3d::Zero();
   Eigen::Vector4d q_start_wxyz = Eigen::Vector4d::Zero();
   Eigen::Vector3d goal_world_m = Eigen::Vector3d::Zero();
+  // Keyed episode (issue 32, quad_core/episode_key.h): true -> starts at quad_core::EpisodeStartNs(index)
+  // with the id EpisodeIdOf(index) (TimeKeeper::BeginEpisode); false -> one odometry period after the last
+  // stamp with the simulator's next unkeyed id.
+  bool keyed = false;
+  uint32_t episode_index = 0;
 };
 
 struct EpisodeSetup {

@@ -12,6 +12,7 @@
 //   }
 #pragma once
 
+#include "quad_core/episode_key.h"
 #include "quad_sim/attitude_controller.h"
 #include "quad_sim/collision.h"
 #include "quad_sim/commands.h"
@@ -27,6 +28,7 @@
 
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <random>
 #include <string>
 
@@ -79,10 +81,13 @@ class Simulator {
 
   // Starts a new episode at time 0: the vehicle at rest, level, at p_start_world with the given yaw (on the
   // ground with motors off when its box touches the ground, else hovering at trim until commands arrive).
+  // episode_id: the episode's id (a keyed episode's quad_core::EpisodeIdOf(index)); nullopt: the next unkeyed
+  // id, counting from quad_core::kUnkeyedEpisodeIdBase, so that it never equals a keyed one. A failed reset
+  // uses no id.
   // Throws std::invalid_argument with a clear message for non-finite input, a start box intersecting a world
   // box or the ground, or an invalid world.
   void Reset(const World& world, const Eigen::Vector3d& p_start_world, double yaw_start_rad,
-             const Eigen::Vector3d& goal_world);
+             const Eigen::Vector3d& goal_world, std::optional<uint32_t> episode_id = std::nullopt);
   // The configured default episode: world_file or GenerateWorld(world_gen + start/goal clear zones, seed).
   void ResetDefault(uint64_t seed);
 
@@ -175,7 +180,7 @@ class Simulator {
   int num_rejected_commands_ = 0;
   std::vector<int> boxes_in_contact_;
   EpisodeState episode_;
-  uint32_t next_episode_id_ = 1;
+  uint32_t next_episode_id_ = quad_core::kUnkeyedEpisodeIdBase;
   std::mt19937_64 noise_rng_;
 };
 

@@ -2,7 +2,8 @@
 // TimeKeeper and drives it with the wall clock and the lockstep gate's state:
 //
 //   sim time     = kTimeBaseNs + (physics steps so far) * dt; it advances only by Stepped() (one physics
-//                  step) and by NewEpisode() (one odometry period, so that stamps never repeat);
+//                  step), by NewEpisode() (one odometry period, so that stamps never repeat) and by
+//                  StartEpisodeAt() (to a keyed episode's start, quad_core/episode_key.h);
 //   /clock       = published before a step when ClockDue(): every clock_period_s of sim time, and at every
 //                  odometry and depth frame time (so a frame's stamp is never ahead of /clock);
 //   real_time    = each step is paced to wall time (PaceUntil), factor: to wall time * real_time_factor;
@@ -13,6 +14,8 @@
 // Wall times are seconds on the caller's monotonic clock.
 #pragma once
 
+#include "quad_core/episode_key.h"
+#include "quad_sim/episode_request.h"
 #include "quad_sim/sim_config.h"
 #include "quad_sim/simulator.h"
 
@@ -35,7 +38,7 @@ inline std::chrono::steady_clock::time_point WallPoint(double wall_s) {
 class TimeKeeper {
  public:
   // Sim time of the first step: 1 s, so that stamps are valid (non-zero) from the first message.
-  static constexpr uint64_t kTimeBaseNs = 1000000000ULL;
+  static constexpr uint64_t kTimeBaseNs = quad_core::kEpisodeTimeBaseNs;
 
   // Throws std::invalid_argument if physics_dt_s, odometry_rate_hz or time.clock_period_s are not positive.
   TimeKeeper(const SimConfig& config, double wall_now_s);
@@ -56,8 +59,17 @@ class TimeKeeper {
   bool WaitsForFrames() const { return lockstep() && has_depth_consumers_; }
 
   void Stepped() { ++total_steps_; }
-  // A new episode starts one odometry period after the last stamp of the previous one.
+  // A new (unkeyed) episode starts one odometry period after the last stamp of the previous one.
   void NewEpisode() { total_steps_ += steps_per_odom_; }
+  // A keyed episode starts at sim time ns (quad_core::EpisodeStartNs): afterwards now_ns() == ns. Throws
+  // std::invalid_argument if ns is not after now_ns() (stamps never go back) or not a whole number of
+  // physics steps after kTimeBaseNs.
+  void StartEpisodeAt(uint64_t ns);
+  // The sim time of the episode a reset starts: keyed (request.keyed) at EpisodeStartNs(episode_index),
+  // returning its id EpisodeIdOf(episode_index); else NewEpisode(), returning nullopt (the simulator's next
+  // unkeyed id). Throws std::invalid_argument (an index out of range, StartEpisodeAt's refusals) and then
+  // leaves the time unchanged.
+  std::optional<uint32_t> BeginEpisode(const EpisodeRequest& request);
 
   // Pacing of real_time and factor: Anchor pins sim time now to wall_now_s (at start and after every reset);
   // PaceUntil gives the wall time to sleep until before the next step (nothing if not paced or not ahead).

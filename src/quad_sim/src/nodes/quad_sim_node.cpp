@@ -1,8 +1,7 @@
 // quad_sim_node: the ROS plumbing of quad_sim::Simulator (odometry, depth, TF, world, voxel map, commands,
-// sim/reset). Time modes: quad_sim::TimeKeeper; lockstep protocol: quad_core::LockstepGate; message
-// conversion: ros/conversions.h (docs/quad_sim.md). Private parameters, both required: ~config (sim.yaml),
-// ~world_seed (int; -1: world.seed of the config). Topics are relative except ROS's /clock, /tf, /tf_static,
-// which a second simulator under the same master remaps (docs/quad_sim.md, "Several simulators").
+// sim/reset, keyed or not). Time: quad_sim::TimeKeeper; lockstep: quad_core::LockstepGate; messages:
+// ros/conversions.h (docs/quad_sim.md). Private parameters, both required: ~config (sim.yaml), ~world_seed
+// (int; -1: world.seed of the config). Topics are relative except /clock, /tf, /tf_static (docs/quad_sim.md).
 #include "quad_core/lockstep_gate.h"
 #include "quad_ros/vocabulary.h"
 #include "quad_sim/simulator.h"
@@ -258,23 +257,25 @@ class QuadSimNode {
   quad_msgs::ResetEpisode::Response DoReset(const quad_msgs::ResetEpisode::Request& req) {
     quad_msgs::ResetEpisode::Response res;
     try {
-      const quad_sim::EpisodeSetup e = quad_sim::ResolveEpisode(config_, quad_sim_ros::FromMsg(req));
-      sim_.Reset(e.world, e.start_world_m, e.start_yaw_rad, e.goal_world_m);
+      const quad_sim::EpisodeRequest request = quad_sim_ros::FromMsg(req);
+      const quad_sim::EpisodeSetup e = quad_sim::ResolveEpisode(config_, request);
+      quad_sim::TimeKeeper next = time_;  // keyed or not (issue 32); kept once the simulator accepts
+      const std::optional<uint32_t> id = next.BeginEpisode(request);
+      sim_.Reset(e.world, e.start_world_m, e.start_yaw_rad, e.goal_world_m, id);
+      time_ = next;
     } catch (const std::exception& e) {
       res.success = false;
       res.message = std::string("reset rejected: ") + e.what();
       ROS_ERROR("quad_sim: %s", res.message.c_str());
       return res;
     }
-    time_.NewEpisode();  // stamps of the new episode never repeat the previous one's
     {
       std::lock_guard<std::mutex> lock(mu_);
       episode_start_ = Now();
       pending_ = PendingCommand();
       gate_.BeginEpisode(episode_start_.toNSec());
     }
-    odometry_count_ = 0;
-    depth_frame_count_ = 0;
+    odometry_count_ = depth_frame_count_ = 0;
     collision_logged_ = false;
     PublishWorld();
     PublishStatus(true);

@@ -240,6 +240,8 @@ quad_sim::EpisodeRequest FromMsg(const quad_msgs::ResetEpisode::Request& req) {
   r.q_start_wxyz = Eigen::Vector4d(o.w, o.x, o.y, o.z);
   r.start_world_m = Eigen::Vector3d(req.start.position.x, req.start.position.y, req.start.position.z);
   r.goal_world_m = Eigen::Vector3d(req.goal.x, req.goal.y, req.goal.z);
+  r.keyed = req.keyed;
+  r.episode_index = req.episode_index;
   return r;
 }
 

@@ -19,9 +19,12 @@ episodes without touching the finished ones:
   the end of the dataset) are cut (`read_dataset truncate`). Records of finished episodes are never
   rewritten;
 - the planner's collector then appends to the dataset (`cpp_data_collector::OpenMode::kAppend`: shard
-  indices, seqs and counts continue; episode ids are shifted past the dataset's largest one, since the new
-  simulator numbers its episodes from the start again) and the episode manager starts at the first episode
-  index that is not finished.
+  indices, seqs and counts continue, episode ids are kept) and the episode manager starts at the first
+  episode index that is not finished. Episodes are keyed (issue 32, `quad_core/episode_key.h`): episode i
+  starts at sim time 1 s + (i + 1) * 1000 s with episode id i + 1 in every launch, so the resumed episodes
+  get the stamps, ids and therefore records a straight run gives them. A dataset whose finished episodes do
+  not carry their keyed ids (collected before episodes were keyed) cannot be continued that way and is
+  refused.
 
 Resuming into a directory that holds no dataset yet starts the run, so the same command can be used for the
 first run and every resumption. Everything here runs while roslaunch parses the launch file, before any node
@@ -179,6 +182,7 @@ def plan_resume(d: Path, identity: Mapping[str, str], collect_params: Mapping[st
         plan.actions += [f"recover: {a}" for a in _run_tool(["recover", str(d)])]
         ds = open_dataset(d)
     goals = np.concatenate([s.records["goal_world"] for s in ds.shards]) if ds.shards else np.zeros((0, 3))
+    ids = np.concatenate([s.records["episode_id"] for s in ds.shards]) if ds.shards else np.zeros(0, np.int64)
     total = int(goals.shape[0])
     cfg = manager_config(
         str(collect_params["config"]), {k: v for k, v in collect_params.items() if k != "config"}
@@ -197,6 +201,14 @@ def plan_resume(d: Path, identity: Mapping[str, str], collect_params: Mapping[st
                 f"(with every later episode: {len(rows) - len(kept_rows)} rows dropped from {EPISODES_FILE})"
             )
             break
+        wrong = ids[pos : pos + n] != row.index + 1
+        if np.any(wrong):
+            raise ResumeError(
+                f"{d}: record {pos + int(np.argmax(wrong))} of finished episode {row.index} has episode id "
+                f"{int(ids[pos + int(np.argmax(wrong))])}, not its keyed id {row.index + 1}: the dataset was "
+                "collected before episodes were keyed (issue 32) and cannot be resumed; pass another "
+                "output_dir:=DIR"
+            )
         kept_rows.append(row)
         pos += n
     finished_goals = [np.asarray(plan_episode(cfg, r.index).goal_world) for r in kept_rows]

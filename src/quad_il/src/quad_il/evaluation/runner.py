@@ -159,13 +159,17 @@ class EpisodeRunner:
             self._decisions, self._timings = [], []
         self.odom.clear()
         if reset:
+            goal = Point(*spec.goal_world)
             start = Pose(
                 position=Point(sx, sy, GROUND_Z_M),
                 orientation=Quaternion(0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)),
             )
             with self._lock:
                 markers_before = self._markers_seen
-            resp = self.reset_srv(seed=spec.seed, world_file="", start=start, goal=Point(*spec.goal_world))
+            # Keyed by the episode's index (issue 32): its stamps, id and flight do not depend on earlier ones
+            resp = self.reset_srv(
+                seed=spec.seed, world_file="", start=start, goal=goal, keyed=True, episode_index=spec.index
+            )
             self.frames.held = None  # the reset released the held frame
             if not resp.success:
                 return self._result(spec, "reset_failed", resp.message, None)

@@ -1,0 +1,88 @@
+#include "quad_engine/policy_vec.h"
+
+#include <stdexcept>
+
+namespace quad_engine {
+
+PolicyVec::PolicyVec(const Configs& configs, const quad_policy::PolicyNodeConfig& policy,
+                     const quad_policy::PolicyMeta& meta, int num_slots, bool with_labeller) {
+  if (num_slots < 1) throw std::invalid_argument("PolicyVec: num_slots " + std::to_string(num_slots) + " < 1");
+  for (int i = 0; i < num_slots; ++i) slots_.push_back(std::make_unique<PolicyEpisode>(configs, policy, meta, with_labeller));
+}
+
+std::vector<int> PolicyVec::AdvanceAll() {
+  std::vector<int> waiting;
+  for (int i = 0; i < size(); ++i) {
+    PolicyEpisode& e = *slots_[static_cast<size_t>(i)];
+    if (e.done()) continue;
+    if (e.Advance()) waiting.push_back(i);
+  }
+  return waiting;
+}
+
+void PolicyVec::RunTorch(const quad_policy::TorchPolicy& policy, const std::vector<EpisodeSpec>& specs,
+                         const EvalLimits& limits, const OnDone& on_done) {
+  const quad_policy::PolicyMeta& m = policy.meta();
+  std::vector<long> running(slots_.size(), -1);  // the spec index each slot flies, -1: none
+  size_t next = 0;
+  auto refill = [&] {
+    for (size_t s = 0; s < slots_.size(); ++s) {
+      while (running[s] < 0 && next < specs.size()) {
+        slots_[s]->Reset(specs[next], limits);
+        running[s] = static_cast<long>(next++);
+        if (slots_[s]->done()) {  // a refused reset
+          on_done(static_cast<size_t>(running[s]), *slots_[s]);
+          running[s] = -1;
+        }
+      }
+    }
+  };
+  refill();
+  std::vector<float> depth;
+  std::vector<quad_policy::StateVector> states;
+  std::vector<quad_core::VehicleState> odometry;
+  std::vector<Eigen::Vector3d> goals;
+  while (true) {
+    bool any = false;
+    for (long r : running) any = any || r >= 0;
+    if (!any) break;
+    std::vector<int> waiting;
+    for (size_t s = 0; s < slots_.size(); ++s) {
+      if (running[s] < 0) continue;
+      if (slots_[s]->Advance()) {
+        waiting.push_back(static_cast<int>(s));
+      } else {
+        on_done(static_cast<size_t>(running[s]), *slots_[s]);
+        running[s] = -1;
+      }
+    }
+    if (!waiting.empty()) {
+      depth.clear();
+      states.clear();
+      odometry.clear();
+      goals.clear();
+      for (int s : waiting) {
+        const DecisionRequest& r = slots_[static_cast<size_t>(s)]->request();
+        depth.insert(depth.end(), r.depth_x.begin(), r.depth_x.end());
+        states.push_back(r.state_x);
+        odometry.push_back(r.state);
+        goals.push_back(r.goal_world);
+      }
+      const std::vector<float> y = policy.RunBatch(depth, states, &odometry, &goals);
+      ++forward_passes_;
+      batched_decisions_ += waiting.size();
+      const size_t dim = static_cast<size_t>(m.network_output_dim());
+      for (size_t j = 0; j < waiting.size(); ++j) {
+        PolicyEpisode& e = *slots_[static_cast<size_t>(waiting[j])];
+        const DecisionRequest req = e.request();
+        auto ask = [&policy, &m, req](const Eigen::Vector3d& goal) {
+          return policy.Run(req.depth_x, quad_policy::EncodeState(req.state, goal, m), req.state, goal);
+        };
+        e.Decide(std::vector<float>(y.begin() + j * dim, y.begin() + (j + 1) * dim), ask);
+      }
+    }
+    refill();
+  }
+}
+
+}  // namespace quad_engine
