@@ -3,11 +3,14 @@
 #   make test    the whole test suite (lint, gtest, rostest, pytest) with a summary line
 #   make build   idempotent set-up (apt, .venv, pip) + catkin build
 #   make eval POLICY=runs/x/policy.ts [SET=dev|dev_dense|test|test_dense | SEEDS=9000-9019 EPISODES=20 DENSITY=]
-#             [TIER=bare|safety|shield] [CONTROLLERS=expert,py,cpp] [EVAL_OUT=results/eval]
-#             [POLICY_CONFIG=config/policy.yaml] [FORCE_NEW=1]
-#                closed-loop evaluation of expert, Python and C++ policy on held-out worlds (docs/inference.md)
+#             [TIER=bare|safety|shield] [CONTROLLERS=expert,cpp] [EVAL_OUT=results/eval]
+#             [POLICY_CONFIG=config/policy.yaml] [FORCE_NEW=1] [BACKEND=engine|ros]
+#                closed-loop evaluation of the expert and the policy on held-out worlds (docs/inference.md), in
+#                process on the rollout engine (default; docs/engine.md) or through ROS (BACKEND=ros, which
+#                also flies the Python node: CONTROLLERS=expert,py,cpp)
 #   make shell   a shell with the workspace sourced
-#   make bench-<component>   BENCH lines of one component (sim, tracker, planner, collector, train, inference, scale)
+#   make bench-<component>   BENCH lines of one component (sim, tracker, planner, collector, train, inference, scale,
+#                            engine)
 #   make lint / make format
 SHELL := /bin/bash
 .PHONY: setup build test demo eval shell lint format clean
@@ -30,14 +33,16 @@ SEEDS ?=
 EPISODES ?=
 DENSITY ?=
 TIER ?= shield
-CONTROLLERS ?= expert,py,cpp
+BACKEND ?= engine
+CONTROLLERS ?=
 EVAL_OUT ?= results/eval
 POLICY_CONFIG ?=
 FORCE_NEW ?=
 eval: build
 	@test -n "$(POLICY)" || test "$(CONTROLLERS)" = expert || { echo "make eval: POLICY=<exported policy.ts> is required (a training run's policy.ts) unless CONTROLLERS=expert" >&2; exit 2; }
 	@source scripts/env.sh && python -m quad_il.evaluation.run_eval --policy "$(POLICY)" --tier "$(TIER)" \
-	  --controllers "$(CONTROLLERS)" --out "$(EVAL_OUT)" $(if $(SET),--set $(SET),) $(if $(SEEDS),--seeds "$(SEEDS)",) \
+	  --backend "$(BACKEND)" $(if $(CONTROLLERS),--controllers "$(CONTROLLERS)",) --out "$(EVAL_OUT)" \
+	  $(if $(SET),--set $(SET),) $(if $(SEEDS),--seeds "$(SEEDS)",) \
 	  $(if $(EPISODES),--episodes $(EPISODES),) $(if $(DENSITY),--density $(DENSITY),) \
 	  $(if $(POLICY_CONFIG),--policy-config "$(POLICY_CONFIG)",) $(if $(FORCE_NEW),--force-new,)
 

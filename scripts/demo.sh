@@ -1,12 +1,13 @@
 #!/usr/bin/env bash
 # `make demo`: the main job end to end on the default configuration (after `make build`):
-#   1. collect demonstrations: the expert (fast_planner + its C++ collector) flies seeded worlds in lockstep,
-#      2 parallel collect.launch workers (python -m quad_il.collection.parallel);
+#   1. collect demonstrations: the expert (fast_planner + its C++ collector) flies seeded worlds on the rollout
+#      engine, 2 worker threads (python -m quad_il.collection.parallel; the records collect.launch would write);
 #   2. train the policy on them (training_only/train_on_cpp_datasets.py; exports policy.ts);
 #   3. offline evaluation on demonstrations from worlds never seen in training (training_only/evaluate_policy.py);
-#   4. closed-loop evaluation: the expert, the Python policy and the C++ (LibTorch) policy fly the same held-out
-#      episodes (python -m quad_il.evaluation.run_eval) in the `shield` tier, and the C++ policy again in the
-#      `bare` tier (the network alone, docs/inference.md "Tiers"); Markdown reports with plots.
+#   4. closed-loop evaluation on the engine: the expert and the C++ (LibTorch) policy fly the same held-out
+#      episodes (python -m quad_il.evaluation.run_eval) in the `shield` tier, and the policy again in the
+#      `bare` tier (the network alone, docs/inference.md "Tiers"); Markdown reports with plots. (The Python
+#      node flies on the ROS backend: make eval BACKEND=ros.)
 # Every stage's output is under $OUT (default results/demo); a stage whose output is complete is skipped, so an
 # interrupted demo continues where it stopped (DEMO_FRESH=1 starts over). Larger settings by variables:
 #   DEMO_TRAIN_EPISODES (60) DEMO_TEST_EPISODES (12) DEMO_EPOCHS (12) DEMO_EVAL_EPISODES (5) DEMO_WORKERS (2)
@@ -59,7 +60,7 @@ fi
 stage "3/4 offline evaluation on the held-out demonstrations"
 python training_only/evaluate_policy.py --policy "$RUN" --data "$OUT/data/heldout" --out "$OUT/offline"
 
-stage "4/4 closed-loop evaluation: expert, Python policy, C++ policy on $EVAL_EPISODES held-out episodes"
+stage "4/4 closed-loop evaluation on the engine: expert and C++ policy on $EVAL_EPISODES held-out episodes"
 EVAL_SEEDS="9000-$((9000 + EVAL_EPISODES - 1))"
 python -m quad_il.evaluation.run_eval --policy "$RUN/policy.ts" --seeds "$EVAL_SEEDS" \
   --episodes "$EVAL_EPISODES" --out "$OUT/eval"

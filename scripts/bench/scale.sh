@@ -28,7 +28,7 @@ bench_collection() {
   episodes=${SCALE_COLLECT_EPISODES:-6}
   for n in 1 2; do
     echo "[bench scale] collection with $n worker(s): seeds $seeds, $episodes episodes -> $work/w$n" >&2
-    python -m quad_il.collection.parallel --workers "$n" --seeds "$seeds" --episodes "$episodes" \
+    python -m quad_il.collection.parallel --backend ros --workers "$n" --seeds "$seeds" --episodes "$episodes" \
       --out "$work/w$n" --timeout-s 1800 >&2 || { rm -rf "$work"; return 1; }
     rps=$(python -c 'import sys, yaml; print(yaml.safe_load(open(sys.argv[1]))["records_per_s"])' \
       "$work/w$n/collection.yaml")

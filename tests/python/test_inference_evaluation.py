@@ -318,6 +318,7 @@ def _fake_relaunch_eval(
     episodes = tmp_path / "episodes.json"
     write_episodes(episodes, plan_eval_episodes([9000, 9001], 2, StartGoalConfig()))
     args = argparse.Namespace(
+        backend="ros",
         episode_mode="relaunch",
         sim_config=str(ROOT / "config" / "sim.yaml"),
         density=None,

@@ -10,6 +10,22 @@ PolicyVec::PolicyVec(const Configs& configs, const quad_policy::PolicyNodeConfig
   for (int i = 0; i < num_slots; ++i) slots_.push_back(std::make_unique<PolicyEpisode>(configs, policy, meta, with_labeller));
 }
 
+PolicyVec::PolicyVec(const Configs& configs, int num_slots) {
+  if (num_slots < 1) throw std::invalid_argument("PolicyVec: num_slots " + std::to_string(num_slots) + " < 1");
+  for (int i = 0; i < num_slots; ++i) slots_.push_back(std::make_unique<PolicyEpisode>(configs));
+}
+
+void PolicyVec::RunExpert(const std::vector<EpisodeSpec>& specs, const EvalLimits& limits, const OnDone& on_done) {
+  for (size_t k = 0; k < specs.size(); ++k) {
+    PolicyEpisode& e = *slots_[k % slots_.size()];
+    e.Reset(specs[k], limits);
+    while (e.Advance()) {
+      throw std::logic_error("PolicyVec::RunExpert: the expert controller asked for a policy decision");
+    }
+    on_done(k, e);
+  }
+}
+
 std::vector<int> PolicyVec::AdvanceAll() {
   std::vector<int> waiting;
   for (int i = 0; i < size(); ++i) {

@@ -30,7 +30,8 @@ PolicyEpisode::PolicyEpisode(const Configs& configs, const quad_policy::PolicyNo
       meta_(meta),
       sim_(cfg_.sim),
       tracker_(cfg_.tracker, cfg_.vehicle.mass_kg, cfg_.vehicle.gravity_mps2, cfg_.vehicle.MaxThrustN()),
-      decider_(meta, policy.safety, policy.refusal, policy.recovery, policy.keeping) {
+      decider_(std::make_unique<quad_policy::PolicyDecider>(meta, policy.safety, policy.refusal, policy.recovery,
+                                                            policy.keeping)) {
   const auto& cam = cfg_.sim.camera;
   mount_.p_body_camera = cam.p_body_camera_m;
   mount_.q_body_camera = cam.q_body_camera;
@@ -44,7 +45,24 @@ PolicyEpisode::PolicyEpisode(const Configs& configs, const quad_policy::PolicyNo
   }
 }
 
+PolicyEpisode::PolicyEpisode(const Configs& configs)
+    : cfg_(configs),
+      sim_(cfg_.sim),
+      tracker_(cfg_.tracker, cfg_.vehicle.mass_kg, cfg_.vehicle.gravity_mps2, cfg_.vehicle.MaxThrustN()),
+      expert_(std::make_unique<fast_planner::ExpertSession>(cfg_.planner, /*label_every_frame=*/false)) {
+  mount_.p_body_camera = cfg_.sim.camera.p_body_camera_m;
+  mount_.q_body_camera = cfg_.sim.camera.q_body_camera;
+  dt_ns_ = static_cast<uint64_t>(std::llround(cfg_.sim.physics_dt_s * 1e9));
+}
+
 PolicyEpisode::~PolicyEpisode() = default;
+
+void PolicyEpisode::Fly(const fast_planner::ReplannerOutput& out, double clock_s) {
+  if (!out.trajectory) return;
+  ++result_.decisions;
+  ++result_.counts[out.trajectory->reason == "emergency stop" ? "emergency_stop" : "plan"];
+  if (!tracker_.AddGoal(goal_ids_++, ToGoalSpec(*out.trajectory), clock_s).empty()) ++result_.counts["tracker_rejection"];
+}
 
 double PolicyEpisode::NowS() const { return quad_core::StampSeconds(t0_ns_ + step_ * dt_ns_); }
 
@@ -85,17 +103,21 @@ void PolicyEpisode::Reset(const EpisodeSpec& spec, const EvalLimits& limits) {
   }
   const double t0 = quad_core::StampSeconds(t0_ns_);
   tracker_.OnEpisodeStatus(id, t0);
-  decider_.Reset();
-  if (labeller_) {
-    if (cfg_.planner.map.source == fast_planner::MapSource::kGlobal) {
-      std::vector<Eigen::Vector3d> points;
-      for (const auto& c : sim_.ComputeVoxelMap().OccupiedCenters()) points.push_back(c.cast<double>());
-      labeller_->SetGlobalMap(std::move(points));
-    }
-    label_records_->Start(id, sim_.world().seed);
-    labeller_->StartEpisode(t0);
+  if (decider_) decider_->Reset();
+  std::vector<Eigen::Vector3d> global;
+  if ((labeller_ || expert_) && cfg_.planner.map.source == fast_planner::MapSource::kGlobal) {
+    for (const auto& c : sim_.ComputeVoxelMap().OccupiedCenters()) global.push_back(c.cast<double>());
   }
+  for (fast_planner::ExpertSession* e : {labeller_.get(), expert_.get()}) {
+    if (!e) continue;
+    if (!global.empty()) e->SetGlobalMap(global);
+    for (const auto& [t_s, out] : e->StartEpisode(t0)) {
+      if (e == expert_.get()) Fly(out, t_s);
+    }
+  }
+  if (labeller_) label_records_->Start(id, sim_.world().seed);
   t_takeoff_s_ = quad_core::RospySeconds(t0_ns_);
+  last_depth_s_ = 0.0;
 }
 
 bool PolicyEpisode::Advance() {
@@ -115,10 +137,14 @@ bool PolicyEpisode::Advance() {
       const quad_core::VehicleState wire = quad_core::OdometryAsReceived(sim_.Odometry(z_offset_m_, t_s), t_ns);
       command_ = ToSimCommand(tracker_.OnOdometry(wire).command);
       odom_.push_back(wire);
+      result_.points.push_back({quad_core::RospySeconds(t_ns), wire.p_world_body.x(), wire.p_world_body.y(),
+                                wire.p_world_body.z()});
       if (odom_.size() > kOdometryKept) odom_.pop_front();
-      if (labeller_) {
+      for (fast_planner::ExpertSession* e : {labeller_.get(), expert_.get()}) {
+        if (!e) continue;
         try {
-          labeller_->OnOdometry(wire);
+          const fast_planner::ReplannerOutput out = e->OnOdometry(wire);
+          if (e == expert_.get()) Fly(out, t_s);
         } catch (const std::invalid_argument&) {
         }
       }
@@ -164,6 +190,17 @@ void PolicyEpisode::OnFrame() {
   frame_ = frame;
   request_ = DecisionRequest{};
   request_.stamp_s = stamp;
+  if (expert_) {  // the expert controller: integrates the frame, replans, flies
+    if (expert_->SetCameraPose(mount_, frame.get())) {
+      try {
+        Fly(expert_->OnDepth(frame).flight, stamp);
+      } catch (const std::invalid_argument&) {
+        Skip("bad_input");
+      }
+    }
+    last_depth_s_ = stamp;
+    return;
+  }
   if (labeller_ && labeller_->SetCameraPose(mount_, frame.get())) {
     try {
       const fast_planner::ExpertSession::FrameOutput out = labeller_->OnDepth(frame);
@@ -219,7 +256,7 @@ PolicyEpisode::Outcome PolicyEpisode::Decide(std::vector<float> y,
   const uint64_t t_ns = t0_ns_ + step_ * dt_ns_;
   quad_policy::Decision d;
   try {
-    d = decider_.Decide(inputs_, std::move(y), ask);
+    d = decider_->Decide(inputs_, std::move(y), ask);
   } catch (const std::invalid_argument& e) {
     Skip("bad_input");
     return Outcome{"none", e.what(), "", false};
@@ -270,9 +307,21 @@ void PolicyEpisode::DirectFrame() {
           return;
         }
         goal_ = spec_.goal_world;
+        const double now_s = quad_core::StampSeconds(t0_ns_ + step_ * dt_ns_);
         if (labeller_) {
           fast_planner::ReplannerOutput unused;
-          labeller_->SetGoal(spec_.goal_world, quad_core::StampSeconds(t0_ns_ + step_ * dt_ns_), &unused);
+          labeller_->SetGoal(spec_.goal_world, now_s, &unused);
+        }
+        if (expert_) {  // fast_planner_node plans from its newest sensor stamp
+          double plan_s = last_depth_s_;
+          if (!expert_->odometry().empty()) plan_s = std::max(plan_s, expert_->odometry().newest().t_s);
+          fast_planner::ReplannerOutput out;
+          const std::string why = expert_->SetGoal(spec_.goal_world, plan_s, &out);
+          if (!why.empty()) {
+            Finish("reset_failed", "the controller refused the episode's goal: goal rejected: " + why, t);
+            return;
+          }
+          Fly(out, now_s);
         }
         t_goal_s_ = t;
         phase_ = Phase::kFlying;
@@ -310,6 +359,8 @@ void PolicyEpisode::Finish(const std::string& outcome, const std::string& reason
   pending_ = false;
   result_.outcome = outcome;
   result_.reason = reason;
+  result_.t_goal_s = t_goal_s_;
+  result_.t_end_s = t_end_s;
   if (phase_ == Phase::kFlying) {
     result_.flight_time_s = std::max(0.0, t_end_s - t_goal_s_);
     if (outcome == "goal_reached") result_.time_to_goal_s = result_.flight_time_s;

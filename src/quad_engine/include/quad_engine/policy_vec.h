@@ -18,6 +18,9 @@ class PolicyVec {
   PolicyVec(const Configs& configs, const quad_policy::PolicyNodeConfig& policy, const quad_policy::PolicyMeta& meta,
             int num_slots, bool with_labeller);
 
+  // num_slots expert controllers (the expert's evaluation on the engine; see RunExpert).
+  PolicyVec(const Configs& configs, int num_slots);
+
   int size() const { return static_cast<int>(slots_.size()); }
   PolicyEpisode& slot(int i) { return *slots_.at(static_cast<size_t>(i)); }
 
@@ -30,6 +33,9 @@ class PolicyVec {
   using OnDone = std::function<void(size_t spec_index, PolicyEpisode& episode)>;
   void RunTorch(const quad_policy::TorchPolicy& policy, const std::vector<EpisodeSpec>& specs,
                 const EvalLimits& limits, const OnDone& on_done);
+
+  // Flies `specs` with the expert controllers, one episode per slot at a time.
+  void RunExpert(const std::vector<EpisodeSpec>& specs, const EvalLimits& limits, const OnDone& on_done);
 
   // Statistics of RunTorch: batched forward passes and the decisions they answered.
   uint64_t forward_passes() const { return forward_passes_; }

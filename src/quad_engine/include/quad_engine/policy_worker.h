@@ -1,7 +1,8 @@
-// The learned policy in the engine (issue 32, docs/engine.md): one keyed evaluation episode of the simulator,
-// the tracker and the policy as launch/infer.launch connects them (policy_node.cpp: a decision at every depth
+// Closed-loop evaluation in the engine (issue 32, docs/engine.md): one keyed evaluation episode of the
+// simulator, the tracker and a controller as launch/infer.launch connects them: the learned policy (policy_node.cpp: a decision at every depth
 // frame from the odometry paired with it, the trajectory to the tracker before the frame is released), driven
-// by the evaluation runner's logic (quad_il.evaluation.runner: take-off, goal, end) and, optionally, the
+// by the evaluation runner's logic (quad_il.evaluation.runner: take-off, goal, end), or the expert (flight
+// mode, as the expert's evaluation launch connects fast_planner_node); optionally, with the policy, the
 // expert in labeller mode beside it (its plan from exactly the policy's state at every frame: DAgger labels,
 // the Gymnasium env's info).
 //
@@ -65,16 +66,22 @@ struct PolicyEpisodeResult {
   uint64_t decisions = 0;
   std::map<std::string, uint64_t> counts;  // decision statuses, verdicts and events (as policy/decision)
   std::vector<std::array<double, 4>> trajectory;  // [t - t_goal, x, y, z] every 0.1 s of sim time
+  // Every odometry [t, x, y, z] of the episode, t as the runner reads stamps (the evaluation keeps those from
+  // the goal to the end: quad_il.evaluation.metrics.summarise_flight).
+  std::vector<std::array<double, 4>> points;
+  double t_goal_s = 0.0, t_end_s = 0.0;  // as the runner reads stamps (rospy seconds)
   double sim_s = 0.0;
   uint64_t steps = 0;
 };
 
 class PolicyEpisode {
  public:
-  // meta: the exported policy's (its JSON). with_labeller: run the expert (planner config of `configs`) in
-  // labeller mode beside the policy. Throws on an invalid config.
+  // The policy as controller. meta: the exported policy's (its JSON). with_labeller: run the expert (planner
+  // config of `configs`) in labeller mode beside the policy. Throws on an invalid config.
   PolicyEpisode(const Configs& configs, const quad_policy::PolicyNodeConfig& policy,
                 const quad_policy::PolicyMeta& meta, bool with_labeller);
+  // The expert (planner config of `configs`, flight mode) as controller: Advance() never stops for a decision.
+  explicit PolicyEpisode(const Configs& configs);
   ~PolicyEpisode();
 
   // Starts the keyed episode (index, seed, start, goal) as the evaluation runner does.
@@ -103,6 +110,7 @@ class PolicyEpisode {
   std::vector<OwnedRecord> TakeLabelRecords();
   const quad_core::CameraIntrinsics& intrinsics() const { return sim_.camera_intrinsics(); }
   const quad_policy::PolicyMeta& meta() const { return meta_; }
+  const quad_sim::World& world() const { return sim_.world(); }
 
  private:
   enum class Phase { kTakeoff, kTakingOff, kFlying };
@@ -111,6 +119,7 @@ class PolicyEpisode {
   void DirectFrame();           // the evaluation runner's decision at the current frame
   void Finish(const std::string& outcome, const std::string& reason, double t_end_s);
   void Skip(const std::string& status) { ++result_.counts[status]; }
+  void Fly(const fast_planner::ReplannerOutput& out, double clock_s);  // the expert's trajectories
   double NowS() const;
 
   Configs cfg_;
@@ -118,7 +127,8 @@ class PolicyEpisode {
   quad_policy::PolicyMeta meta_;
   quad_sim::Simulator sim_;
   kr_tracker::TrackerManager tracker_;
-  quad_policy::PolicyDecider decider_;
+  std::unique_ptr<quad_policy::PolicyDecider> decider_;   // the policy controller
+  std::unique_ptr<fast_planner::ExpertSession> expert_;   // the expert controller (flight mode)
   std::unique_ptr<fast_planner::ExpertSession> labeller_;
   std::shared_ptr<RecordBuffer> label_records_;
   fast_planner::CameraMount mount_;
@@ -132,7 +142,8 @@ class PolicyEpisode {
   Phase phase_ = Phase::kTakeoff;
   int gotos_ = 0;
   double t_takeoff_s_ = 0.0, t_goal_s_ = 0.0;
-  double status_end_s_ = 0.0;  // the status's sim time when the simulator ended the episode (rospy seconds)
+  double status_end_s_ = 0.0;
+  double last_depth_s_ = 0.0;  // the expert controller's newest frame (its goal's plan time)  // the status's sim time when the simulator ended the episode (rospy seconds)
   std::optional<Eigen::Vector3d> goal_;
   std::deque<quad_core::VehicleState> odom_;
   std::optional<uint64_t> last_decision_ns_;

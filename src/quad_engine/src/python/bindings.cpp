@@ -41,8 +41,19 @@ EpisodeSpec SpecOf(const py::tuple& t) {
                      t[3].cast<double>(), V3(t[4].cast<std::array<double, 3>>())};
 }
 
-py::dict ResultDict(const PolicyEpisodeResult& r) {
+py::dict ResultDict(const PolicyEpisodeResult& r, const quad_sim::World& world) {
   py::dict d;
+  d["points"] = r.points;
+  d["t_goal_s"] = r.t_goal_s;
+  d["t_end_s"] = r.t_end_s;
+  py::list boxes;  // center, quaternion x y z w, size (the world markers' fields)
+  for (const quad_sim::OrientedBox& b : world.boxes) {
+    const auto& q = b.q_world_box;
+    boxes.append(py::make_tuple(std::array<double, 3>{b.center_world_m.x(), b.center_world_m.y(), b.center_world_m.z()},
+                                std::array<double, 4>{q.x(), q.y(), q.z(), q.w()},
+                                std::array<double, 3>{b.size_m.x(), b.size_m.y(), b.size_m.z()}));
+  }
+  d["boxes"] = boxes;
   d["outcome"] = r.outcome;
   d["reason"] = r.reason;
   d["time_to_goal_s"] = r.time_to_goal_s;
@@ -173,14 +184,16 @@ PYBIND11_MODULE(quad_engine_py, m) {
       .def_property_readonly("warnings", &DatasetSink::warnings)
       .def_property_readonly("last_warning", &DatasetSink::last_warning);
 
-  py::class_<quad_policy::PolicyNodeConfig>(m, "PolicyConfig", "config/policy.yaml (overlays merged).")
+  py::class_<quad_policy::PolicyNodeConfig>(m, "PolicyConfig", py::module_local(),
+                                            "config/policy.yaml (overlays merged).")
       .def_readwrite("replan_rate_hz", &quad_policy::PolicyNodeConfig::replan_rate_hz)
       .def_readwrite("goal_tolerance_m", &quad_policy::PolicyNodeConfig::goal_tolerance_m)
       .def_readwrite("policy_file", &quad_policy::PolicyNodeConfig::policy_file);
   m.def("load_policy_config", &quad_policy::LoadPolicyNodeConfig, py::arg("path"),
         "Loads a policy config (an overlay is merged over its base); errors name the file and key.");
 
-  py::class_<quad_policy::PolicyMeta>(m, "PolicyMeta", "An exported policy's interface (quad_il_policy.json).")
+  py::class_<quad_policy::PolicyMeta>(m, "PolicyMeta", py::module_local(),
+                                      "An exported policy's interface (quad_il_policy.json).")
       .def_readonly("input_height", &quad_policy::PolicyMeta::input_height)
       .def_readonly("input_width", &quad_policy::PolicyMeta::input_width)
       .def_readonly("num_ctrl_pts", &quad_policy::PolicyMeta::num_ctrl_pts)
@@ -190,8 +203,8 @@ PYBIND11_MODULE(quad_engine_py, m) {
       .def_property_readonly("network_output_dim", &quad_policy::PolicyMeta::network_output_dim);
   m.def("parse_policy_meta", &quad_policy::ParsePolicyMeta, py::arg("json_text"), py::arg("source"));
 
-  py::class_<quad_policy::TorchPolicy, std::shared_ptr<quad_policy::TorchPolicy>>(m, "TorchPolicy",
-                                                                                "An exported policy (LibTorch).")
+  py::class_<quad_policy::TorchPolicy, std::shared_ptr<quad_policy::TorchPolicy>>(
+      m, "TorchPolicy", py::module_local(), "An exported policy (LibTorch).")
       .def(py::init<const std::string&>(), py::arg("path"))
       .def_property_readonly("meta", &quad_policy::TorchPolicy::meta)
       .def_property_readonly("path", &quad_policy::TorchPolicy::path);
@@ -253,7 +266,8 @@ PYBIND11_MODULE(quad_engine_py, m) {
           },
           py::arg("slot"), py::arg("y"), py::arg("ask") = py::none())
       .def("done", [](PolicyVec& v, int i) { return v.slot(i).done(); }, py::arg("slot"))
-      .def("result", [](PolicyVec& v, int i) { return ResultDict(v.slot(i).result()); }, py::arg("slot"))
+      .def("result", [](PolicyVec& v, int i) { return ResultDict(v.slot(i).result(), v.slot(i).world()); },
+           py::arg("slot"))
       .def("take_label_run", [](PolicyVec& v, int i) { return LabelRun(v.slot(i)); }, py::arg("slot"),
            "The labeller's records of the slot's episode so far, as an EpisodeRun (DatasetSink.write).")
       .def(
@@ -268,12 +282,28 @@ PYBIND11_MODULE(quad_engine_py, m) {
                        [&](size_t k, PolicyEpisode& e) {
                          EpisodeRun labels = LabelRun(e);
                          py::gil_scoped_acquire acquire;
-                         on_done(k, ResultDict(e.result()), std::move(labels));
+                         on_done(k, ResultDict(e.result(), e.world()), std::move(labels));
                        });
           },
           py::arg("policy"), py::arg("specs"), py::arg("takeoff_timeout_s"), py::arg("episode_timeout_s"),
           py::arg("on_done"),
           "Flies the specs with the LibTorch policy, one batched forward pass per round of decisions.")
+      .def_static(
+          "experts", [](const Configs& c, int n) { return std::make_unique<PolicyVec>(c, n); }, py::arg("configs"),
+          py::arg("num_slots"), "num_slots expert controllers (the expert's evaluation).")
+      .def(
+          "run_expert",
+          [](PolicyVec& v, const std::vector<py::tuple>& specs, double takeoff_timeout_s, double episode_timeout_s,
+             const std::function<void(size_t, py::dict)>& on_done) {
+            std::vector<EpisodeSpec> s;
+            for (const py::tuple& t : specs) s.push_back(SpecOf(t));
+            py::gil_scoped_release release;
+            v.RunExpert(s, EvalLimits{takeoff_timeout_s, episode_timeout_s}, [&](size_t k, PolicyEpisode& e) {
+              py::gil_scoped_acquire acquire;
+              on_done(k, ResultDict(e.result(), e.world()));
+            });
+          },
+          py::arg("specs"), py::arg("takeoff_timeout_s"), py::arg("episode_timeout_s"), py::arg("on_done"))
       .def_property_readonly("forward_passes", &PolicyVec::forward_passes)
       .def_property_readonly("batched_decisions", &PolicyVec::batched_decisions);
 }

@@ -211,6 +211,23 @@ def plan_episode(cfg: CollectConfig, index: int) -> EpisodeSpec:
     return EpisodeSpec(index, seed, tuple(map(float, start)), float(yaw), tuple(map(float, goal)))
 
 
+EVAL_STREAM = 8  # salt of the evaluation's start/goal RNG (collection uses [seed, index])
+
+
+def plan_eval_episodes(seeds: list[int], episodes: int, start_goal: StartGoalConfig) -> list[EpisodeSpec]:
+    if not seeds:
+        raise ValueError("at least one world seed is needed")
+    if episodes < 1:
+        raise ValueError(f"episodes must be >= 1, got {episodes}")
+    out = []
+    for i in range(episodes):
+        seed = int(seeds[i % len(seeds)])
+        rng = np.random.default_rng([seed, i, EVAL_STREAM])
+        start, yaw, goal = sample_start_goal(start_goal, rng)
+        out.append(EpisodeSpec(i, seed, tuple(map(float, start)), float(yaw), tuple(map(float, goal))))
+    return out
+
+
 @dataclass(frozen=True)
 class EpisodeOutcome:
     index: int

@@ -1,8 +1,14 @@
-"""Parallel collection: N `collect.launch` workers, each on its own ROS master port with its own world seeds,
-into one dataset collection directory (issue 9, Scale; docs/collect.md "Parallel collection").
+"""Parallel collection (issue 9, Scale; docs/collect.md "Parallel collection"; issue 32, docs/engine.md).
 
     python -m quad_il.collection.parallel --workers 2 --seeds 100-199 --episodes 200 --out data/train
-        [--launch-arg key:=value ...] [--timeout-s 7200]
+        [--backend engine|ros] [--launch-arg key:=value ...] [--timeout-s 7200] [--resume]
+
+--backend engine (the default): one in-process engine run with N worker threads (python -m
+quad_il.engine.collect): OUT is one dataset whose episode i is keyed (seeds[i % len(seeds)], i), the records a
+single collect.launch run with these seeds gives, whatever N; OUT/collection.yaml summarises it.
+
+--backend ros: N `collect.launch` workers, each on its own ROS master port with its own world seeds, into one
+dataset collection directory, as follows.
 
 The seeds are dealt round-robin to the workers (worker k flies seeds[k::N]) and the episodes split as evenly
 as possible. The worlds flown do not depend on N; the start/goal pairs do (collect.launch draws them from
@@ -218,6 +224,73 @@ def run_parallel(plans: list[WorkerPlan], out: Path, timeout_s: float, resume: b
     return result
 
 
+# collect.launch arguments the engine takes (as python -m quad_il.engine.collect options).
+ENGINE_LAUNCH_ARGS = (
+    "planner_config",
+    "sim_config",
+    "collect_config",
+    "collector_config",
+    "tracker_config",
+    "vehicle_config",
+    "episode_timeout_s",
+    "max_samples",
+)
+
+
+def run_engine(args: argparse.Namespace) -> int:
+    """--backend engine: one `python -m quad_il.engine.collect` run into OUT (one dataset; episode i keyed
+    (seeds[i % len(seeds)], i) as in one collect.launch run), and OUT/collection.yaml from its summary."""
+    try:
+        launch = _parse_launch_args(args.launch_arg)
+    except ParallelError as exc:
+        print(f"parallel collection: error: {exc}", file=sys.stderr)
+        return 2
+    unknown = sorted(set(launch) - set(ENGINE_LAUNCH_ARGS))
+    if unknown:
+        print(
+            "parallel collection: error: --backend engine takes the launch arguments "
+            f"{list(ENGINE_LAUNCH_ARGS)}, not {unknown} (use --backend ros)",
+            file=sys.stderr,
+        )
+        return 2
+    out = args.out.resolve()
+    cmd = [sys.executable, "-m", "quad_il.engine.collect", "--out", str(out), "--seeds", args.seeds]
+    cmd += ["--episodes", str(args.episodes), "--workers", str(args.workers)]
+    cmd += [f"--{k.replace('_', '-')}={v}" for k, v in launch.items()]
+    if args.resume:
+        cmd.append("--resume")
+    t0 = time.monotonic()
+    try:
+        code = subprocess.run(cmd, timeout=args.timeout_s).returncode
+    except subprocess.TimeoutExpired:
+        print(f"parallel collection: the engine run exceeded --timeout-s {args.timeout_s:g}", file=sys.stderr)
+        return 1
+    summary_path = out / "collect_summary.yaml"
+    summary = yaml.safe_load(summary_path.read_text()) if summary_path.is_file() else {}
+    wall = time.monotonic() - t0
+    result = {
+        "backend": "engine",
+        "num_workers": args.workers,
+        "seeds": args.seeds,
+        "episodes": summary.get("episodes", 0),
+        "records": summary.get("samples", 0),
+        "outcomes": summary.get("outcomes", {}),
+        "wall_s": round(wall, 3),
+        "records_per_s": round(summary.get("samples", 0) / wall, 3) if wall > 0 else 0.0,
+        "complete": bool(summary.get("complete", False)),
+    }
+    if code == 0 and result["complete"]:
+        tmp = out / (COLLECTION_FILE + ".tmp")
+        tmp.write_text(yaml.safe_dump(result, sort_keys=False))
+        os.replace(tmp, out / COLLECTION_FILE)
+    print(
+        f"[parallel] engine, {args.workers} worker(s): {result['episodes']} episodes, "
+        f"{result['records']} records in {wall:.0f} s; outcomes {result['outcomes']}",
+        file=sys.stderr,
+    )
+    return code
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(formatter_class=HelpFormatter, description=__doc__.split("\n\n")[0])
     ap.add_argument("--workers", type=int, default=2, help="parallel collect.launch workers")
@@ -237,7 +310,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         action="store_true",
         help="complete an interrupted collection in --out (same --workers, --seeds, --episodes)",
     )
+    ap.add_argument(
+        "--backend",
+        choices=["engine", "ros"],
+        default="engine",
+        help="engine: one in-process run (python -m quad_il.engine.collect, OUT one dataset, the keys of one "
+        "collect.launch run); ros: the collect.launch workers",
+    )
     args = ap.parse_args(argv)
+    if args.backend == "engine":
+        return run_engine(args)
     try:
         plans = plan_workers(
             parse_seed_ranges(args.seeds),

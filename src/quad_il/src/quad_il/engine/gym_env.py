@@ -34,9 +34,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from quad_il.collection.episodes import StartGoalConfig, load_collect_config
+from quad_il.collection.episodes import StartGoalConfig, load_collect_config, plan_eval_episodes
 from quad_il.engine import native
-from quad_il.evaluation.episodes import plan_eval_episodes
 from quad_il.tools import config_overlay
 from quad_il.tools.repo import repo_root
 

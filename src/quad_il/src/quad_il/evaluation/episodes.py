@@ -13,27 +13,18 @@ import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-import numpy as np
-
-from quad_il.collection.episodes import EpisodeSpec, StartGoalConfig, sample_start_goal
+# plan_eval_episodes and EVAL_STREAM live beside the collection's episode planning (the engine's
+# environments draw the same episodes without importing the evaluation).
+from quad_il.collection.episodes import (  # noqa: F401 - re-exported
+    EVAL_STREAM,
+    EpisodeSpec,
+    StartGoalConfig,
+    plan_eval_episodes,
+    sample_start_goal,
+)
 
 GROUND_Z_M = 0.125  # the vehicle box's half height: episodes start on the ground
-EVAL_STREAM = 8  # salt of the start/goal RNG (collection uses [seed, index])
 OUTCOMES = ("goal_reached", "collision", "timeout", "reset_failed", "takeoff_failed")
-
-
-def plan_eval_episodes(seeds: list[int], episodes: int, start_goal: StartGoalConfig) -> list[EpisodeSpec]:
-    if not seeds:
-        raise ValueError("at least one world seed is needed")
-    if episodes < 1:
-        raise ValueError(f"episodes must be >= 1, got {episodes}")
-    out = []
-    for i in range(episodes):
-        seed = int(seeds[i % len(seeds)])
-        rng = np.random.default_rng([seed, i, EVAL_STREAM])
-        start, yaw, goal = sample_start_goal(start_goal, rng)
-        out.append(EpisodeSpec(i, seed, tuple(map(float, start)), float(yaw), tuple(map(float, goal))))
-    return out
 
 
 def write_episodes(path: str | Path, specs: list[EpisodeSpec]) -> None:

@@ -37,6 +37,7 @@ class RunPin:
     density: float | None
     commit: str
     dirty: bool | None
+    backend: str = "ros"  # where the episodes were flown (ros | engine; pins written before: ros)
 
     # Fields that must be equal on resume (paths may move; the hashes say whether the content did).
     CHECKED = (
@@ -49,6 +50,7 @@ class RunPin:
         "planner_config_sha256",
         "density",
         "commit",
+        "backend",
     )
     # What only the policy controllers use: all empty when an invocation flies the expert alone.
     POLICY_FIELDS = ("tier", "policy_sha256", "policy_path", "policy_config_sha256", "policy_config_base")
@@ -68,6 +70,7 @@ class RunPin:
         if tree.pop("format", None) != PIN_FORMAT:
             raise ValueError(f"{source}: not a format-{PIN_FORMAT} evaluation pin")
         names = {f.name for f in dataclasses.fields(cls)}
+        tree.setdefault("backend", "ros")  # pins written before the engine existed
         if set(tree) != names:
             raise ValueError(f"{source}: pin keys {sorted(set(tree) ^ names)} missing or unknown")
         return cls(**tree)

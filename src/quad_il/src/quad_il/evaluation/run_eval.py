@@ -7,7 +7,7 @@ flown by each controller (expert, Python policy, C++ policy); then the Markdown 
         [--controllers expert,py,cpp] [--out results/eval] [--sim-config config/sim.yaml]
         [--policy-config config/policy.yaml] [--episode-timeout-s 60]
         [--min-distance-m 20 --max-distance-m 30] [--snapshots 8,15] [--episode-mode relaunch|reset]
-        [--setup-retries 1] [--report-only]
+        [--setup-retries 1] [--report-only] [--backend engine|ros]
 
 Episodes come from an evaluation set of config/eval_sets.yaml (--set; development sets for choices, test
 sets only to report) or from --seeds/--episodes/--density. The policy nodes fly one tier (--tier;
@@ -16,8 +16,11 @@ evaluation/tiers.py): `bare` the network alone, `safety` with the depth and limi
 simulator config and commit: resuming into OUT with any of them different is an error naming it
 (--force-new moves the old run aside).
 
-Per controller: a private ROS master with `roslaunch quad_il infer.launch controller:=<c>` (simulator in
-lockstep with the controller and the runner as depth consumers, tracker, controller), then `python -m
+--backend engine (the default) flies every episode in-process on the rollout engine
+(quad_il.evaluation.engine_backend: the expert, and the exported policy through LibTorch and the C++ decider,
+episodes deciding together in one batched forward pass); --backend ros flies them through ROS as follows.
+Per controller on ROS: a private ROS master with `roslaunch quad_il infer.launch controller:=<c>` (simulator
+in lockstep with the controller and the runner as depth consumers, tracker, controller), then `python -m
 quad_il.evaluation.runner` flies every episode through the simulator's reset service; results are appended
 to OUT/<controller>.jsonl (an interrupted run resumes after the last finished episode). A controller whose
 node is not built is reported as unavailable. With
@@ -235,10 +238,24 @@ def _finish_snapshots(snap: subprocess.Popen | None, controller: str) -> None:
 def run_controller(args: argparse.Namespace, controller: str, out: Path, episodes_file: Path) -> str:
     """Flies the episodes not yet in OUT/<controller>.jsonl; returns '' or why the controller was skipped.
 
+    Backend engine: quad_il.evaluation.engine_backend. Backend ros:
+
     Episode mode `relaunch` (default): one launch per episode whose simulator config holds the episode (seed,
     start, goal), so every episode starts from freshly started nodes. `reset`: one launch, the episodes
     through the simulator's reset service (kr_tracker re-anchors its reference on each new episode).
     """
+    if args.backend == "engine":
+        from quad_il.evaluation import engine_backend
+
+        return engine_backend.run_controller(
+            controller,
+            out,
+            episodes_file,
+            eval_sim_config(Path(args.sim_config), controller, args.density),
+            args.episode_timeout_s,
+            policy=args.policy,
+            policy_config=out / TIER_CONFIG,
+        )
     why = node_available(controller)
     if why:
         return why
@@ -336,7 +353,11 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="OUT holds a run flown with something else: move it aside (OUT.old-<time>) and start over",
     )
-    ap.add_argument("--controllers", default=",".join(CONTROLLERS), help="comma-separated controllers flown")
+    ap.add_argument(
+        "--controllers",
+        default=None,
+        help="comma-separated controllers flown (default: expert,cpp on the engine, expert,py,cpp on ros)",
+    )
     ap.add_argument("--out", default=str(ROOT / "results" / "eval"), help="output directory")
     ap.add_argument("--sim-config", default=str(ROOT / "config" / "sim.yaml"), help="simulator config")
     ap.add_argument(
@@ -365,6 +386,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument(
         "--report-only", action="store_true", help="only (re)write the report of existing results"
+    )
+    ap.add_argument(
+        "--backend",
+        choices=["engine", "ros"],
+        default="engine",
+        help="engine: in-process (quad_il.evaluation.engine_backend); ros: the nodes through roslaunch",
     )
     args = ap.parse_args(argv)
     from quad_il.evaluation.report import write_report
@@ -417,6 +444,7 @@ def make_pin(args: argparse.Namespace, policy_controllers: bool, tier_text: str)
         density=args.density,
         commit=commit["commit"],
         dirty=commit["dirty"],
+        backend=args.backend,
     )
 
 
@@ -461,6 +489,8 @@ def pin_run(out: Path, pin: RunPin, force_new: bool) -> RunPin:
 
 def _run(args: argparse.Namespace, write_report: Callable[..., Path]) -> int:
     try:
+        if args.controllers is None:
+            args.controllers = "expert,cpp" if args.backend == "engine" else ",".join(CONTROLLERS)
         controllers = [c.strip() for c in args.controllers.split(",") if c.strip()]
         bad = [c for c in controllers if c not in CONTROLLERS]
         if bad:

@@ -1,0 +1,139 @@
+"""The engine's command-line tools without ROS (docs/engine.md): engine collection (key order, resume, bad
+arguments), a DAgger round whose dataset the training's loader reads, and the evaluation's engine backend.
+Parity with collect.launch is tests/python/test_engine_parity.py. Needs the built workspace."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+engine = pytest.importorskip("quad_il.engine")
+try:
+    engine.native()
+except engine.EngineNotBuiltError as exc:  # pragma: no cover - the workspace is built in CI
+    pytest.skip(str(exc), allow_module_level=True)
+
+from quad_il.collection.episodes import EpisodeLog  # noqa: E402
+from quad_il.collection.prepare import PrepareError  # noqa: E402
+from quad_il.engine import collect, dagger  # noqa: E402
+from quad_il.evaluation import run_eval  # noqa: E402
+from quad_il.evaluation.episodes import read_results  # noqa: E402
+from quad_il.inference.random_policy import export_goal_line_policy  # noqa: E402
+from quad_il.learning.dataset import expand_paths, read_source  # noqa: E402
+
+PRIVILEGED = "config/planner_privileged.yaml"  # the fast expert keeps these tests short
+
+
+def test_a_run_records_every_episode_and_a_resumed_complete_run_flies_nothing(tmp_path) -> None:
+    out = tmp_path / "run"
+    r = collect.collect(out, "1,2", 2, workers=2, planner_config=PRIVILEGED, progress=False)
+    assert r.complete and r.episodes == 2
+    rows = EpisodeLog.read(out / "episodes.csv")
+    assert [(o.index, o.seed) for o in rows] == [(0, 1), (1, 2)]
+    arrays = read_source(*expand_paths([out])[0])
+    assert len(arrays["episode_id"]) == r.samples == sum(o.samples for o in rows)
+    # Key order: every record of episode 0 (id 1) before those of episode 1 (id 2).
+    ids = np.asarray(arrays["episode_id"])
+    assert list(ids) == sorted(ids) and set(ids) == {1, 2}
+    summary = yaml.safe_load((out / "collect_summary.yaml").read_text())
+    assert summary["complete"] and summary["samples"] == r.samples
+    again = collect.collect(out, "1,2", 2, workers=1, planner_config=PRIVILEGED, resume=True, progress=False)
+    assert again.complete and again.samples == r.samples
+    assert len(read_source(*expand_paths([out])[0])["episode_id"]) == r.samples
+
+
+def test_a_directory_holding_a_dataset_is_refused_without_resume(tmp_path) -> None:
+    out = tmp_path / "run"
+    collect.collect(out, "1", 1, planner_config=PRIVILEGED, progress=False)
+    with pytest.raises(PrepareError, match="already holds a dataset"):
+        collect.collect(out, "1", 1, planner_config=PRIVILEGED, progress=False)
+    with pytest.raises(ValueError, match="episodes"):  # resuming with other arguments names the one
+        collect.collect(out, "1", 2, planner_config=PRIVILEGED, resume=True, progress=False)
+
+
+def test_bad_arguments_name_what_is_wrong(tmp_path, capsys) -> None:
+    assert collect.main(["--out", str(tmp_path / "a"), "--planner-config", "config/nope.yaml"]) == 2
+    assert "planner_config" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="backend 'mpi'"):
+        collect.collect(tmp_path / "b", "1", 1, backend="mpi", progress=False)
+    assert dagger.main(["--policy", str(tmp_path / "none.ts"), "--out", str(tmp_path / "c")]) == 2
+    assert "no such file" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def goal_line(tmp_path_factory):
+    return export_goal_line_policy(tmp_path_factory.mktemp("policy") / "goal_line.ts")
+
+
+def test_a_dagger_rounds_labels_are_a_training_dataset(tmp_path, goal_line) -> None:
+    out = tmp_path / "round"
+    s = dagger.run_round(
+        str(goal_line),
+        str(out),
+        "1,2",
+        2,
+        slots=2,
+        planner_config=PRIVILEGED,
+        episode_timeout_s=2.0,
+        progress=False,
+    )
+    assert s["complete"] and s["episodes"] == 2 and s["labels"] > 0
+    assert s["decisions_per_forward_pass"] >= 1.0
+    rows = EpisodeLog.read(out / "episodes.csv")
+    assert [o.index for o in rows] == [0, 1] and sum(o.samples for o in rows) == s["labels"]
+    arrays = read_source(*expand_paths([out])[0])
+    assert len(arrays["episode_id"]) == s["labels"]
+    assert set(np.asarray(arrays["episode_id"])) <= {1, 2}
+
+
+def test_the_evaluations_engine_backend_writes_the_runners_results(tmp_path, goal_line) -> None:
+    out = tmp_path / "eval"
+    code = run_eval.main(
+        [
+            "--policy",
+            str(goal_line),
+            "--seeds",
+            "9000-9001",
+            "--episodes",
+            "2",
+            "--out",
+            str(out),
+            "--episode-timeout-s",
+            "3",
+            "--controllers",
+            "expert,cpp",
+        ]
+    )
+    assert code == 0
+    for controller in ("expert", "cpp"):
+        results = read_results(out / f"{controller}.jsonl")
+        assert [r.index for r in results] == [0, 1]
+        for r in results:
+            assert r.outcome in ("goal_reached", "collision", "timeout"), r
+            assert r.lockstep_timeouts == 0 and r.flight_time_s > 0 and r.path_length_m > 0
+    cpp = read_results(out / "cpp.jsonl")
+    assert all(r.decisions > 0 and r.counts for r in cpp)
+    assert json.loads((out / "pin.json").read_text())["backend"] == "engine"
+    # A resume on the other backend is refused: the pin names the backend.
+    assert (
+        run_eval.main(
+            [
+                "--controllers",
+                "expert",
+                "--seeds",
+                "9000-9001",
+                "--episodes",
+                "2",
+                "--out",
+                str(out),
+                "--episode-timeout-s",
+                "3",
+                "--backend",
+                "ros",
+            ]
+        )
+        == 1
+    )
