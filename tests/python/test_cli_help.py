@@ -22,7 +22,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGE = ROOT / "src" / "quad_il" / "src" / "quad_il"
-SUBPACKAGES = ("learning", "imitation", "data", "evaluation", "collection", "manager", "tools")
+SUBPACKAGES = ("learning", "imitation", "data", "evaluation", "collection", "manager", "tools", "engine")
 # The argv lists that reach each parser of a module (default: [[]]; main dispatches on its argv first).
 ARGVS = {
     "quad_il.imitation.convert": [[], ["train"]],

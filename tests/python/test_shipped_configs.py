@@ -88,6 +88,7 @@ RULES: list[tuple[str, str, Callable[[Path], None]]] = [
     ("config/il_manager.yaml", "manager", load_manager),
     ("config/il/planner*.yaml", "c++ planner (overlay of config/planner.yaml)", cpp_loader("planner")),
     ("config/il/*.yaml", "manager", load_manager),
+    ("config/planner_*.yaml", "c++ planner (overlay of config/planner.yaml)", cpp_loader("planner")),
     ("config/planner.yaml", "c++ planner", cpp_loader("planner")),
     ("config/policy*.yaml", "policy", load_policy_config),
     ("config/sim.yaml", "c++ sim", cpp_loader("sim")),
@@ -111,8 +112,8 @@ FILES = shipped_yaml_files()
 
 
 def test_the_shipped_files_are_found() -> None:
-    # The 13 interactive-learning configs and the other shipped ones (a glob that found nothing would pass).
-    assert len([f for f in FILES if f.startswith("config/il/")]) == 13
+    # The 14 interactive-learning configs and the other shipped ones (a glob that found nothing would pass).
+    assert len([f for f in FILES if f.startswith("config/il/")]) == 14
     for expected in (
         "config/sim.yaml",
         "config/planner.yaml",

@@ -91,7 +91,32 @@ void PolicyVec::RunTorch(const quad_policy::TorchPolicy& policy, const std::vect
       for (size_t j = 0; j < waiting.size(); ++j) {
         PolicyEpisode& e = *slots_[static_cast<size_t>(waiting[j])];
         const DecisionRequest req = e.request();
-        auto ask = [&policy, &m, req](const Eigen::Vector3d& goal) {
+        // The recovery asks for the turned goals one after the other until one is accepted; they are answered
+        // by one batched pass over all of them at the first question (a cache keyed by the goal).
+        std::vector<std::pair<Eigen::Vector3d, std::vector<float>>> answers;
+        auto ask = [&, req](const Eigen::Vector3d& goal) {
+          if (answers.empty()) {
+            std::vector<Eigen::Vector3d> goals{goal};
+            for (double yaw : e.recovery_yaws_deg()) {
+              const Eigen::Vector3d g = quad_policy::TurnedGoal(req.state.p_world_body, req.goal_world, yaw);
+              if (g != goal) goals.push_back(g);
+            }
+            std::vector<float> d;
+            std::vector<quad_policy::StateVector> s;
+            std::vector<quad_core::VehicleState> o(goals.size(), req.state);
+            for (const Eigen::Vector3d& g : goals) {
+              d.insert(d.end(), req.depth_x.begin(), req.depth_x.end());
+              s.push_back(quad_policy::EncodeState(req.state, g, m));
+            }
+            const std::vector<float> ys = policy.RunBatch(d, s, &o, &goals);
+            ++forward_passes_;
+            for (size_t g = 0; g < goals.size(); ++g)
+              answers.emplace_back(goals[g], std::vector<float>(ys.begin() + g * dim, ys.begin() + (g + 1) * dim));
+          }
+          for (const auto& [g, y] : answers) {
+            if (g == goal) return y;
+          }
+          ++forward_passes_;  // a goal the batch did not hold (not one of the configured turns)
           return policy.Run(req.depth_x, quad_policy::EncodeState(req.state, goal, m), req.state, goal);
         };
         e.Decide(std::vector<float>(y.begin() + j * dim, y.begin() + (j + 1) * dim), ask);

@@ -118,6 +118,7 @@ void PolicyEpisode::Reset(const EpisodeSpec& spec, const EvalLimits& limits) {
   if (labeller_) label_records_->Start(id, sim_.world().seed);
   t_takeoff_s_ = quad_core::RospySeconds(t0_ns_);
   last_depth_s_ = 0.0;
+  label_frames_ = 0;
 }
 
 bool PolicyEpisode::Advance() {
@@ -202,8 +203,11 @@ void PolicyEpisode::OnFrame() {
     return;
   }
   if (labeller_ && labeller_->SetCameraPose(mount_, frame.get())) {
+    const size_t kept = label_records_->size();
+    const bool keep = label_frames_++ % static_cast<uint64_t>(label_stride_) == 0;
     try {
       const fast_planner::ExpertSession::FrameOutput out = labeller_->OnDepth(frame);
+      if (!keep) label_records_->Truncate(kept);
       label_records_->SetMapUpdateMs(out.map_update.total_ms);
       if (out.label && out.label->ok()) {
         request_.has_label = true;
@@ -366,6 +370,11 @@ void PolicyEpisode::Finish(const std::string& outcome, const std::string& reason
     if (outcome == "goal_reached") result_.time_to_goal_s = result_.flight_time_s;
   }
   result_.sim_s = static_cast<double>(result_.steps) * cfg_.sim.physics_dt_s;
+}
+
+void PolicyEpisode::set_label_stride(int n) {
+  if (n < 1) throw std::invalid_argument("label stride " + std::to_string(n) + " < 1");
+  label_stride_ = n;
 }
 
 std::vector<OwnedRecord> PolicyEpisode::TakeLabelRecords() {

@@ -182,6 +182,23 @@ TEST(ExpertWorker, AnEpisodesRecordsDependOnItsKeyOnly) {
   EXPECT_EQ(decoded.spec.goal_world, alone.spec.goal_world);
 }
 
+TEST(ExpertWorker, ThePrivilegedExpertRendersOnlyRecordedFramesAndRecordsTheSame) {
+  Configs cfg = TestConfigs();
+  cfg.planner.map.source = fast_planner::MapSource::kGlobal;
+  EpisodeLimits limits;
+  limits.episode_timeout_s = 20.0;
+  ExpertWorker lazy(cfg);
+  ASSERT_TRUE(lazy.lazy_depth());
+  ExpertWorker every(cfg);
+  every.set_lazy_depth(false);
+  const EpisodeRun a = lazy.Run(ShortEpisode(2, 13), limits);
+  const EpisodeRun b = every.Run(ShortEpisode(2, 13), limits);
+  ASSERT_EQ(a.outcome, "goal_reached") << a.reason;
+  ASSERT_GT(a.records.size(), 2u);
+  ExpectSameRecords(a, b);  // depth pixels included
+  EXPECT_GT(a.frames, a.records.size());  // most frames were never rendered
+}
+
 TEST(RunCodec, RefusesBytesThatAreNotARun) {
   try {
     DecodeRun("nonsense");

@@ -13,6 +13,10 @@
 //
 // Values cross between the cores as they would cross ROS (quad_core/wire.h): odometry angular velocity in
 // world axes, trajectory start times rounded to nanoseconds, the manager's times as rospy reads stamps.
+//
+// The privileged expert (map.source global) plans on the world's voxel map, not on its frames: without depth
+// noise a frame is rendered only when a plan made at it is recorded (RecordBuffer's placeholder), which gives
+// the same records as rendering every frame.
 #pragma once
 
 #include <fast_planner/expert_session.h>
@@ -38,6 +42,10 @@ class ExpertWorker {
   EpisodeRun Run(const EpisodeSpec& spec, const EpisodeLimits& limits);
 
   const Configs& configs() const { return cfg_; }
+  // Whether frames are rendered only for the records (the privileged expert without depth noise: the default
+  // then); false renders every frame (what the ROS simulator does; a test compares the two).
+  bool lazy_depth() const { return lazy_depth_; }
+  void set_lazy_depth(bool lazy) { lazy_depth_ = lazy && cfg_.planner.map.source == fast_planner::MapSource::kGlobal; }
 
  private:
   Configs cfg_;

@@ -108,9 +108,14 @@ class PolicyEpisode {
   const PolicyEpisodeResult& result() const { return result_; }
   // The labeller's records of this episode (the expert's plans at the policy's states; DAgger datasets).
   std::vector<OwnedRecord> TakeLabelRecords();
+  // Keep the labeller's records of every n-th frame only (1: every frame; the labeller still sees every frame,
+  // its map needs them). Throws std::invalid_argument for n < 1.
+  void set_label_stride(int n);
   const quad_core::CameraIntrinsics& intrinsics() const { return sim_.camera_intrinsics(); }
   const quad_policy::PolicyMeta& meta() const { return meta_; }
   const quad_sim::World& world() const { return sim_.world(); }
+  // The recovery's turned goals (the policy config's goal_yaw_offsets_deg), in the decider's order.
+  const std::vector<double>& recovery_yaws_deg() const { return policy_cfg_.recovery.goal_yaw_offsets_deg; }
 
  private:
   enum class Phase { kTakeoff, kTakingOff, kFlying };
@@ -143,7 +148,9 @@ class PolicyEpisode {
   int gotos_ = 0;
   double t_takeoff_s_ = 0.0, t_goal_s_ = 0.0;
   double status_end_s_ = 0.0;
-  double last_depth_s_ = 0.0;  // the expert controller's newest frame (its goal's plan time)  // the status's sim time when the simulator ended the episode (rospy seconds)
+  double last_depth_s_ = 0.0;  // the expert controller's newest frame (its goal's plan time)
+  int label_stride_ = 1;
+  uint64_t label_frames_ = 0;  // frames the labeller saw in this episode  // the status's sim time when the simulator ended the episode (rospy seconds)
   std::optional<Eigen::Vector3d> goal_;
   std::deque<quad_core::VehicleState> odom_;
   std::optional<uint64_t> last_decision_ns_;

@@ -50,6 +50,10 @@ class RecordBuffer : public fast_planner::PlanObserver {
     records_.back().Rebind();
   }
   std::vector<OwnedRecord> Take() { return std::move(records_); }
+  // Drops the records after the first n (labels of a frame that is not kept).
+  void Truncate(size_t n) {
+    if (records_.size() > n) records_.resize(n);
+  }
   size_t size() const { return records_.size(); }
 
  private:

@@ -188,7 +188,10 @@ PYBIND11_MODULE(quad_engine_py, m) {
                                             "config/policy.yaml (overlays merged).")
       .def_readwrite("replan_rate_hz", &quad_policy::PolicyNodeConfig::replan_rate_hz)
       .def_readwrite("goal_tolerance_m", &quad_policy::PolicyNodeConfig::goal_tolerance_m)
-      .def_readwrite("policy_file", &quad_policy::PolicyNodeConfig::policy_file);
+      .def_readwrite("policy_file", &quad_policy::PolicyNodeConfig::policy_file)
+      .def_readwrite("num_threads", &quad_policy::PolicyNodeConfig::num_threads);
+  m.def("configure_torch_threads", &quad_policy::ConfigureTorchThreads, py::arg("num_threads"),
+        "LibTorch's intra-op threads (inter-op: 1), once per process before the first forward pass.");
   m.def("load_policy_config", &quad_policy::LoadPolicyNodeConfig, py::arg("path"),
         "Loads a policy config (an overlay is merged over its base); errors name the file and key.");
 
@@ -304,6 +307,12 @@ PYBIND11_MODULE(quad_engine_py, m) {
             });
           },
           py::arg("specs"), py::arg("takeoff_timeout_s"), py::arg("episode_timeout_s"), py::arg("on_done"))
+      .def(
+          "set_label_stride",
+          [](PolicyVec& v, int n) {
+            for (int i = 0; i < v.size(); ++i) v.slot(i).set_label_stride(n);
+          },
+          py::arg("n"), "Keep the labels of every n-th frame (the labeller still integrates every frame).")
       .def_property_readonly("forward_passes", &PolicyVec::forward_passes)
       .def_property_readonly("batched_decisions", &PolicyVec::batched_decisions);
 }

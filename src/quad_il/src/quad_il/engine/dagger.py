@@ -11,7 +11,8 @@ Episode i is keyed (world seed seeds[i % len(seeds)], index i) with the collecti
 (quad_il.collection.episodes.plan_episode), so a round is the same dataset whatever --slots is; episodes are
 written in key order. OUT holds the dataset, episodes.csv (the learner's outcome of each episode; samples =
 its labels) and dagger_summary.yaml. --slots episodes fly together and every frame at which several decide is
-answered by one batched forward pass.
+answered by one batched forward pass. `--policy none` (the IL manager's round 0 without an initial policy)
+collects the expert's own demonstrations instead (quad_il.engine.collect), as BC.
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ def run_round(
     episodes: int,
     *,
     slots: int = 8,
+    label_stride: int = 3,
     resume: bool = False,
     policy_config: str = "config/policy_plain.yaml",
     collect_config: str = "config/collect.yaml",
@@ -61,6 +63,34 @@ def run_round(
     e = native()
     if slots < 1:
         raise ValueError(f"slots {slots}: must be >= 1")
+    if policy == "none":  # round 0 without a learner (the manager's {policy}): the expert flies, as BC
+        from quad_il.engine.collect import collect
+
+        r = collect(
+            output_dir,
+            seeds,
+            episodes,
+            workers=min(slots, 2),
+            resume=resume,
+            episode_timeout_s=episode_timeout_s,
+            collect_config=collect_config,
+            collector_config=collector_config,
+            sim_config=sim_config,
+            planner_config=planner_config,
+            tracker_config=tracker_config,
+            vehicle_config=vehicle_config,
+            progress=progress,
+        )
+        summary = {
+            "complete": r.complete,
+            "episodes": r.episodes,
+            "labels": r.samples,
+            "learner": "none (expert)",
+            "expert_outcomes": r.outcomes,
+            "wall_s": round(r.wall_s, 3),
+        }
+        (r.output_dir / "dagger_summary.yaml").write_text(yaml.safe_dump(summary, sort_keys=False))
+        return summary
     if not _abs(policy).is_file():
         raise ValueError(f"policy {policy}: no such file (an exported policy.ts)")
     cfg = manager_config(
@@ -85,7 +115,9 @@ def run_round(
     )
     torch_policy = e.TorchPolicy(str(_abs(policy)))
     policy_cfg = e.load_policy_config(str(_abs(policy_config)))
+    e.configure_torch_threads(policy_cfg.num_threads)  # the nodes' setting (config/policy.yaml num_threads)
     vec = e.PolicyVec(configs, policy_cfg, torch_policy.meta, max(1, min(slots, len(specs) or 1)), True)
+    vec.set_label_stride(label_stride)
     run_info = [
         ("launch", "quad_il.engine.dagger"),
         ("policy", str(_abs(policy))),
@@ -156,11 +188,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
         prog="python -m quad_il.engine.dagger", formatter_class=HelpFormatter, description=__doc__
     )
-    ap.add_argument("--policy", required=True, help="the learner: an exported policy.ts")
+    ap.add_argument(
+        "--policy", required=True, help="the learner: an exported policy.ts; none: the expert flies"
+    )
     ap.add_argument("--out", required=True, help="the round's dataset directory")
     ap.add_argument("--seeds", default="100-299", help="world seeds, cycled (ranges allowed)")
     ap.add_argument("--episodes", type=int, default=200, help="episodes of the round")
     ap.add_argument("--slots", type=int, default=8, help="episodes flown together (one batched forward pass)")
+    ap.add_argument(
+        "--label-stride", type=int, default=3, help="keep the expert's labels of every n-th frame (30 Hz / n)"
+    )
     ap.add_argument("--resume", action="store_true", help="continue the round --out holds")
     ap.add_argument("--policy-config", default="config/policy_plain.yaml", help="the learner's tier config")
     ap.add_argument("--planner-config", default="config/planner.yaml", help="the labelling expert's config")
@@ -176,6 +213,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             a.seeds,
             a.episodes,
             slots=a.slots,
+            label_stride=a.label_stride,
             resume=a.resume,
             policy_config=a.policy_config,
             planner_config=a.planner_config,

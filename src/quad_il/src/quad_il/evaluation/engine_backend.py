@@ -111,6 +111,9 @@ def run_controller(
     else:
         torch_policy = e.TorchPolicy(str(Path(policy).resolve()))
         policy_cfg = e.load_policy_config(str(policy_config))
+        e.configure_torch_threads(
+            policy_cfg.num_threads
+        )  # the nodes' setting (config/policy.yaml num_threads)
         vec = e.PolicyVec(configs, policy_cfg, torch_policy.meta, max(1, min(slots, len(specs))), False)
         vec.run_torch(torch_policy, tuples, TAKEOFF_TIMEOUT_S, episode_timeout_s, on_done)
     return ""

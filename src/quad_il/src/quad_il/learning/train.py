@@ -52,7 +52,10 @@ def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
     ap.add_argument("--config", action="append", default=[], help="YAML config; repeat to layer (later wins)")
     ap.add_argument(
-        "--data", action="append", default=[], help="dataset path; repeat for several (sets data.paths)"
+        "--data",
+        action="append",
+        default=[],
+        help="dataset path; repeat, or separate with commas, for several (sets data.paths)",
     )
     ap.add_argument(
         "--set", action="append", default=[], metavar="KEY=VALUE", help="override, e.g. optim.lr=1e-3"
@@ -78,7 +81,9 @@ def overrides_of(args: argparse.Namespace) -> list[str]:
     """The `key=value` overrides a parsed command line stands for (--set first, then the shorthand flags)."""
     overrides = list(args.set)
     if args.data:
-        overrides.append("data.paths=[" + ", ".join(repr(str(Path(p).resolve())) for p in args.data) + "]")
+        # Commas separate paths too: the IL manager's {data_dirs} is a comma-separated list (config/il/).
+        paths = [p for item in args.data for p in item.split(",") if p]
+        overrides.append("data.paths=[" + ", ".join(repr(str(Path(p).resolve())) for p in paths) + "]")
     for flag, key in (
         ("name", "run.name"),
         ("out", "run.out_dir"),
