@@ -95,8 +95,15 @@ void Esdf::Update(const VoxelMap& map, const Eigen::Vector3i& min_idx, const Eig
   line_zd_.resize(longest + 1);
 
   // First pass along x on the binary input: the distance to the nearest seed in the row, by two linear scans.
+  // Most rows hold no obstacle: no seed for the outside field (all infinite), every voxel its own seed for
+  // the inside field (all zero); they are filled without the scans (the same values).
   for (int64_t row = 0; row < total; row += n_.x()) {
     const uint8_t* o = occ_.data() + row;
+    if (std::find(o, o + n_.x(), uint8_t{1}) == o + n_.x()) {
+      std::fill(sq_out_.data() + row, sq_out_.data() + row + n_.x(), kInf);
+      std::fill(sq_in_.data() + row, sq_in_.data() + row + n_.x(), 0);
+      continue;
+    }
     for (const bool inside : {false, true}) {
       int32_t* data = (inside ? sq_in_ : sq_out_).data() + row;
       const uint8_t seed = inside ? 0 : 1;
@@ -118,24 +125,32 @@ void Esdf::Update(const VoxelMap& map, const Eigen::Vector3i& min_idx, const Eig
   // are x rows of the field: for y the block is a z slice in place, for z the rows are gathered into a buffer
   // first (a z column strides over whole slices, which thrashes the cache and the TLB). Columns that are all
   // zero (inside obstacles for the outside field, in free space for the inside field) or have no finite value
-  // stay; has_obstacle[x] lets the inside field skip columns without an obstacle unread.
+  // stay; has_obstacle[x] lets the inside field skip columns without an obstacle. Which columns stay is found
+  // row by row first (sequential reads), so only the columns to transform are read with the block's stride.
+  // Returns whether any column was transformed.
+  std::vector<uint8_t> all_zero(n_.x()), any_finite(n_.x());
   auto columns = [&](int32_t* block, int len, bool inside, const std::vector<uint8_t>& has_obstacle) {
     const int nx = n_.x();
-    for (int x = 0; x < nx; ++x) {
-      if (inside && !has_obstacle[x]) continue;
-      bool all_zero = true, any_finite = false;
-      for (int q = 0; q < len; ++q) {
-        const int32_t val = block[static_cast<int64_t>(q) * nx + x];
-        line_f_[q] = val;
-        all_zero &= val == 0;
-        any_finite |= val != kInf;
+    std::fill(all_zero.begin(), all_zero.end(), uint8_t{1});
+    std::fill(any_finite.begin(), any_finite.end(), uint8_t{0});
+    for (int q = 0; q < len; ++q) {
+      const int32_t* row = block + static_cast<int64_t>(q) * nx;
+      for (int x = 0; x < nx; ++x) {
+        all_zero[x] &= row[x] == 0 ? 1 : 0;
+        any_finite[x] |= row[x] != kInf ? 1 : 0;
       }
-      if (all_zero || !any_finite) continue;
+    }
+    bool changed = false;
+    for (int x = 0; x < nx; ++x) {
+      if ((inside && !has_obstacle[x]) || all_zero[x] || !any_finite[x]) continue;
+      for (int q = 0; q < len; ++q) line_f_[q] = block[static_cast<int64_t>(q) * nx + x];
       DistanceTransform1d(line_f_.data(), len, line_d_.data(), line_v_.data(), line_zn_.data(),
                           line_zd_.data());
       for (int q = 0; q < len; ++q)
         block[static_cast<int64_t>(q) * nx + x] = line_d_[q] > max_sq ? kInf : line_d_[q];
+      changed = true;
     }
+    return changed;
   };
   block_.resize(static_cast<size_t>(n_.x()) * n_.z());
   std::vector<uint8_t> has_obstacle(n_.x());
@@ -161,7 +176,7 @@ void Esdf::Update(const VoxelMap& map, const Eigen::Vector3i& min_idx, const Eig
           for (int x = 0; x < n_.x(); ++x) has_obstacle[x] |= occ_[offset + x];
         }
       }
-      columns(block_.data(), n_.z(), inside, has_obstacle);
+      if (!columns(block_.data(), n_.z(), inside, has_obstacle)) continue;  // nothing to write back
       for (int z = 0; z < n_.z(); ++z) {
         const int32_t* row = block_.data() + static_cast<int64_t>(z) * n_.x();
         std::copy(row, row + n_.x(), field.data() + z * slice + static_cast<int64_t>(y) * n_.x());
@@ -184,6 +199,15 @@ void Esdf::Update(const VoxelMap& map, const Eigen::Vector3i& min_idx, const Eig
       }
     }
   }
+}
+
+void Esdf::ReleaseScratch() {
+  // swap with empty vectors: shrink_to_fit is only a request.
+  std::vector<uint8_t>().swap(occ_);
+  for (auto* v : {&sq_out_, &sq_in_, &block_, &line_f_, &line_d_}) std::vector<int32_t>().swap(*v);
+  std::vector<int>().swap(line_v_);
+  std::vector<int64_t>().swap(line_zn_);
+  std::vector<int64_t>().swap(line_zd_);
 }
 
 float Esdf::VoxelDistance(const Eigen::Vector3i& idx) const {

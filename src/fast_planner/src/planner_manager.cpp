@@ -93,8 +93,12 @@ PlannerManager::PlannerManager(const PlannerConfig& cfg)
       optimizer_(cfg.optimizer, cfg.limits) {}
 
 void PlannerManager::Reset() {
-  map_.Reset();
-  esdf_ = Esdf(cfg_.map.esdf_max_distance_m);
+  // The global source's map only changes in SetGlobalMap(): it stays, with its ESDF, for the next episode's
+  // SetGlobalMap() to reuse when the world is the same.
+  if (cfg_.map.source != MapSource::kGlobal) {
+    map_.Reset();
+    esdf_ = Esdf(cfg_.map.esdf_max_distance_m);
+  }
   esdf_pending_.reset();
   global_map_set_ = false;
   last_depth_.reset();
@@ -118,7 +122,7 @@ MapUpdateResult PlannerManager::UpdateDepth(std::shared_ptr<const DepthFrame> fr
     if (cfg_.map.esdf_on_demand) {
       esdf_pending_ = std::make_pair(lo, hi);
     } else {
-      esdf_.Update(map_, lo, hi);
+      UpdateEsdf(lo, hi);
       r.esdf_computed = true;
     }
   }
@@ -135,28 +139,50 @@ void PlannerManager::UpdateOdometry(const quad_core::VehicleState& odom) {
   last_odom_ = odom;
 }
 
-void PlannerManager::SetGlobalMap(const std::vector<Eigen::Vector3d>& occupied_points_world) {
-  map_.Reset();
-  map_.SetOccupied(occupied_points_world);
-  esdf_ = Esdf(cfg_.map.esdf_max_distance_m);
-  esdf_pending_.reset();
-  global_map_set_ = true;
+void PlannerManager::UpdateEsdf(const Eigen::Vector3i& min_idx, const Eigen::Vector3i& max_idx) {
+  esdf_.Update(map_, min_idx, max_idx);
+  ++esdf_updates_;
 }
 
-void PlannerManager::EnsureEsdfCovers(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
-  const Eigen::Vector3d margin = cfg_.map.local_update_range_m;
+double PlannerManager::SetGlobalMap(const std::vector<Eigen::Vector3d>& occupied_points_world) {
+  const double t0 = NowMs();
+  esdf_pending_.reset();
+  global_map_set_ = true;
+  if (global_points_ && *global_points_ == occupied_points_world) return NowMs() - t0;
+  global_points_.reset();  // until the map and the ESDF are rebuilt (Esdf::Update may throw)
+  map_.Reset();
+  map_.SetOccupied(occupied_points_world);
+  // The x-y box of the observed obstacles between ground and ceiling, widened by the ESDF's truncation
+  // distance and a voxel: outside it every distance is the truncation or the ground/ceiling distance, which
+  // depends on z only, so the Esdf's clamping of positions into its window returns the whole map's field
+  // there (equal up to the rounding of the interpolation weights: test_planner_manager.cpp).
   const Eigen::Vector3i size = map_.size_voxels();
-  const Eigen::Vector3i lo = map_.ToIndex(a.cwiseMin(b) - margin)
-                                 .cwiseMax(Eigen::Vector3i::Zero())
-                                 .cwiseMin(size - Eigen::Vector3i::Ones());
-  const Eigen::Vector3i hi = map_.ToIndex(a.cwiseMax(b) + margin)
-                                 .cwiseMax(Eigen::Vector3i::Zero())
-                                 .cwiseMin(size - Eigen::Vector3i::Ones());
-  if (esdf_.valid() && (esdf_.window_min().array() <= lo.array()).all() &&
-      (esdf_.window_max().array() >= hi.array()).all()) {
-    return;
+  const int z_lo = std::max(0, map_.ground_layer() + 1);
+  const int z_hi = std::min(size.z() - 1, map_.ceiling_layer() - 1);
+  Eigen::Vector3i lo(size.x(), size.y(), 0), hi(-1, -1, size.z() - 1);
+  for (const Eigen::Vector3d& p : occupied_points_world) {
+    if (!p.allFinite() || !map_.InMap(p)) continue;
+    const Eigen::Vector3i idx = map_.ToIndex(p);
+    if (idx.z() < z_lo || idx.z() > z_hi) continue;
+    lo = lo.cwiseMin(idx);
+    hi = hi.cwiseMax(idx);
   }
-  esdf_.Update(map_, lo, hi);
+  if (hi.x() < 0) {
+    lo.head<2>().setZero();  // no obstacle: the field depends on z only; one x-y column holds it
+    hi.head<2>().setZero();
+  }
+  const int margin = static_cast<int>(std::ceil(cfg_.map.esdf_max_distance_m / map_.resolution())) + 1;
+  lo.head<2>() = (lo.head<2>().array() - margin).max(0);
+  hi.head<2>() = (hi.head<2>().array() + margin).min(size.head<2>().array() - 1);
+  lo.z() = 0;
+  if (z_lo <= z_hi) {
+    UpdateEsdf(lo, hi);
+    esdf_.ReleaseScratch();
+  } else {
+    esdf_ = Esdf(cfg_.map.esdf_max_distance_m);  // the map lies entirely in the ground or the ceiling
+  }
+  global_points_ = occupied_points_world;
+  return NowMs() - t0;
 }
 
 bool PlannerManager::MapReady() const {
@@ -220,12 +246,10 @@ std::optional<double> PlannerManager::FirstCollision(const quad_core::NonUniform
 
 PlanResult PlannerManager::Plan(const PlanRequest& request) {
   // Map preparation, not planning: outside total_ms (as a depth frame's ESDF update is), in map_prep_ms.
+  // (The global source's ESDF was computed once by SetGlobalMap.)
   const double t_prep = NowMs();
-  if (cfg_.map.source == MapSource::kGlobal && request.start_p.allFinite() && request.goal.allFinite()) {
-    EnsureEsdfCovers(request.start_p, request.goal);
-  }
   if (esdf_pending_) {
-    esdf_.Update(map_, esdf_pending_->first, esdf_pending_->second);
+    UpdateEsdf(esdf_pending_->first, esdf_pending_->second);
     esdf_pending_.reset();
   }
   const double map_prep_ms = NowMs() - t_prep;

@@ -76,7 +76,6 @@ VoxelMap::VoxelMap(const MapConfig& cfg) : cfg_(cfg) {
   log_odds_.assign(n, 0.0f);
   occupied_.assign(n, 0);
   inflate_count_.assign(n, 0);
-  touched_.reserve(1 << 16);
 }
 
 void VoxelMap::Reset() {
@@ -177,11 +176,21 @@ MapUpdateStats VoxelMap::IntegrateDepth(const DepthFrame& frame) {
   const Eigen::Vector3i box_lo = cam_idx.array() - reach;
   const Eigen::Vector3i box_n = Eigen::Vector3i::Constant(2 * reach + 1);
   const int64_t box_nxy = static_cast<int64_t>(box_n.x()) * box_n.y();
-  local_mark_.assign(static_cast<size_t>(box_nxy) * box_n.z(), 0);
-  touched_.clear();
-  auto mark = [&](int64_t local, uint8_t bits) {
-    uint8_t& m = local_mark_[local];
-    if (m == 0) touched_.push_back(local);
+  // The box's size depends on the configuration only: its marks are allocated once and left all zero after
+  // every frame (only the touched voxels are cleared), and the list of touched voxels has room for the whole
+  // box, so the walk below neither allocates nor checks a capacity (issue 32: this loop is most of a frame).
+  const size_t box_voxels = static_cast<size_t>(box_nxy) * box_n.z();
+  if (local_mark_.size() != box_voxels) {
+    local_mark_.assign(box_voxels, 0);
+    touched_.resize(box_voxels + 1);  // + 1: the branch-free mark writes one past the last kept entry
+  }
+  uint8_t* const marks = local_mark_.data();
+  int64_t* const touched = touched_.data();
+  size_t n_touched = 0;
+  auto mark = [marks, touched, &n_touched](int64_t local, uint8_t bits) {
+    uint8_t& m = marks[local];
+    touched[n_touched] = local;  // kept only if the voxel was not marked yet (no branch)
+    n_touched += m == 0 ? 1 : 0;
     m |= bits;
   };
 
@@ -254,22 +263,41 @@ MapUpdateStats VoxelMap::IntegrateDepth(const DepthFrame& frame) {
       const Eigen::Vector3i l = idx - box_lo;
       int64_t local = l.x() + box_n.x() * (l.y() + static_cast<int64_t>(box_n.y()) * l.z());
       mark(local, hit ? kHitBit : kMissBit);
+      // The axis of each step is the one of the smallest t_max (ties: z over x and y, y over x), on scalars
+      // rather than the arrays indexed by the axis: the same comparisons and sums (bit-identical walks),
+      // without a store-to-load dependency through memory on every step.
+      double tx = t_max[0], ty = t_max[1], tz = t_max[2];
       for (int i = 0; i < steps; ++i) {
-        const int a = t_max[0] < t_max[1] ? (t_max[0] < t_max[2] ? 0 : 2) : (t_max[1] < t_max[2] ? 1 : 2);
-        local += move[a];
-        t_max[a] += t_delta[a];
+        if (tx < ty) {
+          if (tx < tz) {
+            local += move[0];
+            tx += t_delta[0];
+          } else {
+            local += move[2];
+            tz += t_delta[2];
+          }
+        } else if (ty < tz) {
+          local += move[1];
+          ty += t_delta[1];
+        } else {
+          local += move[2];
+          tz += t_delta[2];
+        }
         mark(local, kMissBit);
       }
     }
   }
 
-  for (const int64_t local : touched_) {
+  for (size_t i = 0; i < n_touched; ++i) {
+    const int64_t local = touched[i];
+    const uint8_t bits = marks[local];
+    marks[local] = 0;
     const Eigen::Vector3i idx = box_lo + Eigen::Vector3i(static_cast<int>(local % box_n.x()),
                                                          static_cast<int>((local % box_nxy) / box_n.x()),
                                                          static_cast<int>(local / box_nxy));
     if (!InMap(idx)) continue;
     const int64_t lin = Linear(idx);
-    const bool is_hit = (local_mark_[local] & kHitBit) != 0;
+    const bool is_hit = (bits & kHitBit) != 0;
     float& l = log_odds_[lin];
     const float old = l;
     l = std::clamp(l + (is_hit ? l_hit_ : l_miss_), l_min_, l_max_);

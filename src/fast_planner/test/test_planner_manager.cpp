@@ -4,6 +4,7 @@
 #include <deque>
 #include <limits>
 #include <memory>
+#include <random>
 #include <vector>
 
 #include "fast_planner/planner_manager.h"
@@ -323,6 +324,99 @@ TEST(PlannerManagerTest, NonFiniteOdometryAndMalformedDepthAreRejected) {
   frame->image.depth_m.resize(10);
   EXPECT_THROW(m.UpdateDepth(frame), std::invalid_argument);
   EXPECT_EQ(m.last_depth(), nullptr);
+}
+
+// Issue 32: the privileged expert's ESDF is computed once per world, in SetGlobalMap, never by a plan; a
+// reset followed by the same world again (ExpertSession::StartEpisode) reuses it; another world rebuilds it.
+TEST(PlannerManagerTest, GlobalEsdfIsBuiltOnceAndReusedAfterAResetWithTheSameWorld) {
+  PlannerManager m(GlobalConfig());
+  const auto wall = BoxPoints(Eigen::Vector3d(6.0, 2.0, 0.0), Eigen::Vector3d(6.4, 8.0, 4.0));
+  EXPECT_EQ(m.esdf_updates(), 0);
+  m.SetGlobalMap(wall);
+  EXPECT_EQ(m.esdf_updates(), 1);
+  ASSERT_TRUE(m.esdf().valid());
+  PlanRequest req;
+  req.start_p = Eigen::Vector3d(3.0, 5.0, 1.5);
+  req.goal = Eigen::Vector3d(9.0, 5.0, 1.5);
+  for (const double x : {3.0, 2.0, 1.0}) {  // plans from other starts (the replanner's) reuse it
+    req.start_p.x() = x;
+    const PlanResult r = m.Plan(req);
+    ASSERT_TRUE(r.ok()) << r.reason;
+  }
+  EXPECT_EQ(m.esdf_updates(), 1);
+
+  m.Reset();
+  EXPECT_FALSE(m.MapReady());
+  EXPECT_EQ(m.Plan(req).status, PlanStatus::kMapNotReady);
+  const double d_before = m.esdf().Distance(Eigen::Vector3d(5.5, 5.0, 1.5));
+  m.SetGlobalMap(wall);  // the same points: kept
+  EXPECT_TRUE(m.MapReady());
+  EXPECT_EQ(m.esdf_updates(), 1);
+  EXPECT_EQ(m.esdf().Distance(Eigen::Vector3d(5.5, 5.0, 1.5)), d_before);
+  EXPECT_TRUE(m.map().IsOccupied(Eigen::Vector3d(6.2, 5.0, 1.5)));
+  const PlanResult again = m.Plan(req);
+  ASSERT_TRUE(again.ok()) << again.reason;
+  EXPECT_EQ(again.traj_id, 1);  // the reset forgot the trajectory ids
+  EXPECT_EQ(m.esdf_updates(), 1);
+
+  // Another world: rebuilt, and nothing of the old one is left.
+  m.SetGlobalMap(BoxPoints(Eigen::Vector3d(12.0, 2.0, 0.0), Eigen::Vector3d(12.4, 8.0, 4.0)));
+  EXPECT_EQ(m.esdf_updates(), 2);
+  EXPECT_FALSE(m.map().IsOccupied(Eigen::Vector3d(6.2, 5.0, 1.5)));
+  EXPECT_TRUE(m.map().IsOccupied(Eigen::Vector3d(12.2, 5.0, 1.5)));
+  EXPECT_NEAR(m.esdf().Distance(Eigen::Vector3d(11.55, 5.0, 1.5)), 0.5, 1e-6);
+  // No obstacle within the truncation any more: the ground's distance (z 1.5 m between voxel centres 1.45 and
+  // 1.55 m, the ground layer's centre at -0.05 m).
+  EXPECT_NEAR(m.esdf().Distance(Eigen::Vector3d(6.2, 5.0, 1.5)), 1.55, 1e-6);  // stored as float
+}
+
+// The global ESDF covers only the obstacles' x-y box (widened by the truncation): everywhere in the map it
+// must give the field of a fresh transform over the whole map (voxel values exactly inside its window;
+// interpolated values and gradients anywhere, up to the rounding of the interpolation weights).
+TEST(PlannerManagerTest, GlobalEsdfEqualsAFreshTransformOfTheWholeMap) {
+  for (const int seed : {1, 2, 3}) {
+    PlannerConfig c = GlobalConfig();
+    if (seed == 3) {  // ground and ceiling layers inside the map
+      c.map.origin_m.z() = -0.3;
+      c.map.ceiling_z_m = 3.2;
+    }
+    PlannerManager m(c);
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<double> ux(7.0, 13.0), uy(3.0, 7.0), uz(-0.5, 3.5), ext(0.1, 0.8);
+    std::vector<Eigen::Vector3d> pts;
+    for (int i = 0; i < 12; ++i) {
+      const Eigen::Vector3d lo(ux(rng), uy(rng), uz(rng));
+      const auto box = BoxPoints(lo, lo + Eigen::Vector3d(ext(rng), ext(rng), ext(rng)));
+      pts.insert(pts.end(), box.begin(), box.end());
+    }
+    m.SetGlobalMap(pts);
+    const VoxelMap& map = m.map();
+    const Esdf& esdf = m.esdf();
+    const Eigen::Vector3i top = map.size_voxels() - Eigen::Vector3i::Ones();
+    // The window is smaller than the map in x and y, so the clamping is exercised.
+    ASSERT_GT(esdf.window_min().x(), 0);
+    ASSERT_LT(esdf.window_max().y(), top.y());
+    Esdf full(c.map.esdf_max_distance_m);
+    full.Update(map, Eigen::Vector3i::Zero(), top);
+    for (int z = esdf.window_min().z(); z <= esdf.window_max().z(); ++z) {
+      for (int y = esdf.window_min().y(); y <= esdf.window_max().y(); ++y) {
+        for (int x = esdf.window_min().x(); x <= esdf.window_max().x(); ++x) {
+          const Eigen::Vector3i v(x, y, z);
+          ASSERT_EQ(esdf.VoxelDistance(v), full.VoxelDistance(v))
+              << "seed " << seed << " voxel " << v.transpose();
+        }
+      }
+    }
+    std::uniform_real_distribution<double> px(-1.0, 21.0), py(-1.0, 11.0), pz(-0.5, 4.5);
+    for (int i = 0; i < 20000; ++i) {
+      const Eigen::Vector3d p(px(rng), py(rng), pz(rng));
+      Eigen::Vector3d g, g_full;
+      const double d = esdf.DistanceAndGradient(p, &g);
+      const double d_full = full.DistanceAndGradient(p, &g_full);
+      ASSERT_NEAR(d, d_full, 1e-9) << "seed " << seed << " at " << p.transpose();
+      ASSERT_LT((g - g_full).norm(), 1e-6) << "seed " << seed << " at " << p.transpose();
+    }
+  }
 }
 
 }  // namespace

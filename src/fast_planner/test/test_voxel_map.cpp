@@ -1,7 +1,12 @@
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
+#include <map>
+#include <random>
+#include <tuple>
+#include <vector>
 
 #include "fast_planner/voxel_map.h"
 #include "test_util.h"
@@ -173,6 +178,232 @@ TEST(VoxelMapTest, LocalWindowIsClippedToTheMap) {
   map.LocalWindow(Eigen::Vector3d(1.05, 5.05, 2.05), &lo, &hi);
   EXPECT_EQ(lo, Eigen::Vector3i(0, 20, 0));
   EXPECT_EQ(hi, Eigen::Vector3i(30, 80, 39));
+}
+
+// The ray casting as it was before issue 32 made it faster (per-frame marks cleared by a full fill, the step
+// axis chosen on arrays indexed by the axis), written plainly here as the reference: the optimised
+// IntegrateDepth must give bit-identical log-odds, occupancy, inflation and statistics (the collection's
+// records must not change). Same arithmetic in the same order; marks keyed by the voxel instead of a box.
+struct ReferenceMap {
+  explicit ReferenceMap(const VoxelMap& geometry)
+      : g(geometry), log_odds(static_cast<size_t>(geometry.size_voxels().prod()), 0.0f) {}
+
+  static float LogOddsOf(double p) { return static_cast<float>(std::log(p / (1.0 - p))); }
+
+  MapUpdateStats Integrate(const DepthFrame& frame) {
+    const MapConfig& cfg = g.config();
+    const auto& dc = cfg.depth;
+    const double res = g.resolution(), inv_res = 1.0 / res;
+    const Eigen::Vector3d origin = g.origin();
+    MapUpdateStats stats;
+    const auto& k = frame.intrinsics;
+    const Eigen::Matrix3d R = frame.q_world_camera.normalized().toRotationMatrix();
+    const Eigen::Vector3d cam = frame.p_world_camera;
+    const Eigen::Vector3d cam_vox = (cam - origin) * inv_res;
+    const Eigen::Vector3d lo = origin.array() + 1e-6 * res;
+    const Eigen::Vector3d hi = g.max_corner().array() - 1e-6 * res;
+    const int reach = static_cast<int>(std::ceil(dc.max_ray_length_m * inv_res)) + 2;
+    const Eigen::Vector3i cam_idx = cam_vox.array().floor().cast<int>();
+    std::map<std::tuple<int, int, int>, uint8_t> marks;
+    auto mark = [&](const Eigen::Vector3i& v, uint8_t bits) { marks[{v.x(), v.y(), v.z()}] |= bits; };
+    for (int v = 0; v < k.height; v += dc.skip_pixel) {
+      for (int u = 0; u < k.width; u += dc.skip_pixel) {
+        const float d = frame.image.depth_m[static_cast<size_t>(v) * k.width + u];
+        if (std::isnan(d) || d == -std::numeric_limits<float>::infinity()) continue;
+        const Eigen::Vector3d dir_c((u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0);
+        const double range_per_depth = dir_c.norm();
+        bool hit = true;
+        double depth = d;
+        if (std::isinf(d) || d * range_per_depth > dc.max_ray_length_m) {
+          hit = false;
+          depth = dc.max_ray_length_m / range_per_depth;
+        } else if (d * range_per_depth < dc.min_ray_length_m) {
+          continue;
+        }
+        Eigen::Vector3d end = cam + R * (dir_c * depth);
+        if (!g.InMap(end)) {
+          const Eigen::Vector3d seg = end - cam;
+          double t0 = 0.0, t1 = 1.0;
+          bool inside = true;
+          for (int a = 0; a < 3 && inside; ++a) {
+            if (std::abs(seg[a]) < 1e-12) {
+              inside = cam[a] >= lo[a] && cam[a] <= hi[a];
+              continue;
+            }
+            double ta = (lo[a] - cam[a]) / seg[a];
+            double tb = (hi[a] - cam[a]) / seg[a];
+            if (ta > tb) std::swap(ta, tb);
+            t0 = std::max(t0, ta);
+            t1 = std::min(t1, tb);
+            inside = t0 <= t1;
+          }
+          if (!inside) continue;
+          end = cam + seg * t1;
+          hit = false;
+          if (!g.InMap(end)) continue;
+        }
+        ++stats.rays;
+        const Eigen::Vector3d s = (end - origin) * inv_res;
+        const Eigen::Vector3d dir = cam_vox - s;
+        Eigen::Vector3i idx = s.array().floor().cast<int>();
+        if (((idx - cam_idx).array().abs() >= reach).any()) continue;
+        int move[3];
+        double t_max[3], t_delta[3];
+        int steps = 0;
+        for (int a = 0; a < 3; ++a) {
+          steps += std::abs(cam_idx[a] - idx[a]);
+          if (dir[a] > 0.0) {
+            move[a] = 1;
+            t_max[a] = (idx[a] + 1 - s[a]) / dir[a];
+            t_delta[a] = 1.0 / dir[a];
+          } else if (dir[a] < 0.0) {
+            move[a] = -1;
+            t_max[a] = (idx[a] - s[a]) / dir[a];
+            t_delta[a] = -1.0 / dir[a];
+          } else {
+            move[a] = 0;
+            t_max[a] = std::numeric_limits<double>::infinity();
+            t_delta[a] = std::numeric_limits<double>::infinity();
+          }
+        }
+        mark(idx, hit ? 1 : 2);
+        for (int i = 0; i < steps; ++i) {
+          const int a = t_max[0] < t_max[1] ? (t_max[0] < t_max[2] ? 0 : 2) : (t_max[1] < t_max[2] ? 1 : 2);
+          idx[a] += move[a];
+          t_max[a] += t_delta[a];
+          mark(idx, 2);
+        }
+      }
+    }
+    const float l_hit = LogOddsOf(dc.prob_hit), l_miss = LogOddsOf(dc.prob_miss);
+    const float l_min = LogOddsOf(dc.prob_min), l_max = LogOddsOf(dc.prob_max);
+    const float l_occ = LogOddsOf(dc.prob_occupied);
+    for (const auto& [key, bits] : marks) {
+      const Eigen::Vector3i v(std::get<0>(key), std::get<1>(key), std::get<2>(key));
+      if (!g.InMap(v)) continue;
+      float& l = log_odds[g.Linear(v)];
+      const float old = l;
+      l = std::clamp(l + ((bits & 1) ? l_hit : l_miss), l_min, l_max);
+      if (l != old) ++stats.voxels_updated;
+      if ((l > l_occ) != (old > l_occ)) ++((l > l_occ) ? stats.newly_occupied : stats.newly_free);
+    }
+    return stats;
+  }
+
+  const VoxelMap& g;
+  std::vector<float> log_odds;
+};
+
+// Random frames (random poses inside and outside the map, depths with NaN, +-Inf, too short and too long
+// returns, rays leaving the map) through the map and through the reference.
+TEST(VoxelMapRayCastingTest, BitIdenticalToThePlainReferenceOnRandomFrames) {
+  MapConfig c = SmallMapConfig(Eigen::Vector3d(6.0, 5.0, 3.0));
+  c.origin_m = Eigen::Vector3d(-1.0, -2.0, -0.5);
+  c.ground_z_m = 0.0;
+  c.ceiling_z_m = 2.0;
+  c.depth.max_ray_length_m = 3.0;
+  c.depth.skip_pixel = 2;
+  c.local_update_range_m = Eigen::Vector3d(2.0, 2.0, 1.0);
+  VoxelMap map(c);
+  ReferenceMap ref(map);
+  std::mt19937 rng(32);
+  std::uniform_real_distribution<double> ux(-1.5, 5.5), uy(-2.5, 3.5), uz(-0.3, 2.6), unit(-1.0, 1.0);
+  std::uniform_real_distribution<float> base(0.05f, 3.8f), slope(-0.02f, 0.02f);
+  std::uniform_int_distribution<int> kind(0, 19);
+  int newly_occupied = 0, newly_free = 0;
+  // Each pose sees a sloped surface three or four times (voxels become occupied), then one farther away
+  // (some are freed again); a fifth of the pixels are NaN, +Inf, -Inf or random.
+  for (int pose = 0; pose < 12; ++pose) {
+    DepthFrame f = test::ConstantDepthFrame(1.0f, Eigen::Vector3d(ux(rng), uy(rng), uz(rng)), 48, 36);
+    f.q_world_camera =
+        Eigen::Quaterniond(unit(rng), unit(rng), unit(rng), unit(rng));  // normalised by the map
+    const float d0 = base(rng), su = slope(rng), sv = slope(rng);
+    for (int rep = 0; rep < 5; ++rep) {
+      for (int v = 0; v < 36; ++v) {
+        for (int u = 0; u < 48; ++u) {
+          float& d = f.image.depth_m[static_cast<size_t>(v) * 48 + u];
+          d = d0 + su * u + sv * v + (rep == 4 ? 0.8f : 0.0f);
+          switch (kind(rng)) {
+            case 0:
+              d = std::numeric_limits<float>::quiet_NaN();
+              break;
+            case 1:
+              d = std::numeric_limits<float>::infinity();
+              break;
+            case 2:
+              d = -std::numeric_limits<float>::infinity();
+              break;
+            case 3:
+              d = base(rng);
+              break;
+            default:
+              break;
+          }
+        }
+      }
+      const MapUpdateStats got = map.IntegrateDepth(f);
+      const MapUpdateStats want = ref.Integrate(f);
+      ASSERT_EQ(got.rays, want.rays) << "pose " << pose << " frame " << rep;
+      ASSERT_EQ(got.voxels_updated, want.voxels_updated) << "pose " << pose << " frame " << rep;
+      ASSERT_EQ(got.newly_occupied, want.newly_occupied) << "pose " << pose << " frame " << rep;
+      ASSERT_EQ(got.newly_free, want.newly_free) << "pose " << pose << " frame " << rep;
+      newly_occupied += got.newly_occupied;
+      newly_free += got.newly_free;
+    }
+  }
+  // Rays through voxel corners, where the step axis is a tie (the tie-breaking must be the same): from a
+  // voxel corner, pixels at 45 degrees (fx = fy = 10, u - cx and v - cy multiples of 10).
+  for (int rep = 0; rep < 3; ++rep) {
+    DepthFrame f = test::ConstantDepthFrame(rep == 0 ? 2.0f : 1.5f, Eigen::Vector3d(0.0, 0.0, 1.0), 48, 36);
+    f.intrinsics = quad_core::CameraIntrinsics{48, 36, 10.0, 10.0, 20.0, 20.0};
+    f.q_world_camera = test::CameraLookingAlongX();
+    const MapUpdateStats got = map.IntegrateDepth(f);
+    const MapUpdateStats want = ref.Integrate(f);
+    ASSERT_EQ(got.rays, want.rays) << "corner frame " << rep;
+    ASSERT_EQ(got.voxels_updated, want.voxels_updated) << "corner frame " << rep;
+    ASSERT_EQ(got.newly_occupied, want.newly_occupied) << "corner frame " << rep;
+    ASSERT_EQ(got.newly_free, want.newly_free) << "corner frame " << rep;
+  }
+  EXPECT_GT(newly_occupied, 100);  // the frames did build and change a map
+  EXPECT_GT(newly_free, 10);
+  const Eigen::Vector3i n = map.size_voxels();
+  const float l_occ = ReferenceMap::LogOddsOf(c.depth.prob_occupied);
+  int64_t occupied = 0, observed = 0;
+  for (int z = 0; z < n.z(); ++z) {
+    for (int y = 0; y < n.y(); ++y) {
+      for (int x = 0; x < n.x(); ++x) {
+        const Eigen::Vector3i v(x, y, z);
+        const float want = ref.log_odds[map.Linear(v)];
+        ASSERT_EQ(map.LogOdds(v), want) << v.transpose();  // bit-identical floats
+        occupied += want > l_occ ? 1 : 0;
+        observed += want != 0.0f ? 1 : 0;
+      }
+    }
+  }
+  EXPECT_EQ(map.CountOccupied(), occupied);
+  EXPECT_GT(occupied, 100);
+  EXPECT_GT(observed, 5000);
+  // The inflation counts follow the occupancy (a brute-force check of the incremental counts).
+  const int r = map.inflation_voxels();
+  const double r_vox = c.inflation_m * (1.0 / c.resolution_m);  // as the map computes its sphere
+  for (int z = 0; z < n.z(); ++z) {
+    for (int y = 0; y < n.y(); ++y) {
+      for (int x = 0; x < n.x(); ++x) {
+        const Eigen::Vector3i v(x, y, z);
+        bool near = z <= map.ground_layer() + r || z >= map.ceiling_layer() - r;
+        for (int dz = -r; dz <= r && !near; ++dz) {
+          for (int dy = -r; dy <= r && !near; ++dy) {
+            for (int dx = -r; dx <= r && !near; ++dx) {
+              const Eigen::Vector3i w = v + Eigen::Vector3i(dx, dy, dz);
+              if (dx * dx + dy * dy + dz * dz > r_vox * r_vox + 1e-9 || !map.InMap(w)) continue;
+              near = ref.log_odds[map.Linear(w)] > l_occ;
+            }
+          }
+        }
+        ASSERT_EQ(map.IsInflated(v), near) << v.transpose();
+      }
+    }
+  }
 }
 
 }  // namespace

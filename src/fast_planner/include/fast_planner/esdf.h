@@ -44,6 +44,11 @@ class Esdf {
   // that lies entirely in the ground or the ceiling.
   void Update(const VoxelMap& map, const Eigen::Vector3i& min_idx, const Eigen::Vector3i& max_idx);
 
+  // Frees the scratch buffers of the transform (about 9 bytes per window voxel; the field itself, 4 bytes per
+  // voxel, stays). For a field computed once and kept (the global map source); the next Update() allocates
+  // them again.
+  void ReleaseScratch();
+
   bool valid() const { return !dist_.empty(); }
   const Eigen::Vector3i& window_min() const { return min_; }
   const Eigen::Vector3i& window_max() const { return max_; }

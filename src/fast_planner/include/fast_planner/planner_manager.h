@@ -14,6 +14,7 @@
 #include <optional>
 #include <string>
 #include <utility>
+#include <vector>
 
 #include "fast_planner/bspline_optimizer.h"
 #include "fast_planner/esdf.h"
@@ -63,7 +64,7 @@ struct PlanTimings {
   double reallocation_ms = 0.0;  // time re-allocation (all attempts)
   double check_ms = 0.0;         // final collision checks (all attempts)
   double total_ms = 0.0;         // the whole Plan() call, without map_prep_ms
-  double map_prep_ms = 0.0;      // ESDF computed for this plan before it (esdf_on_demand, global source)
+  double map_prep_ms = 0.0;      // ESDF computed for this plan before it (map.esdf_on_demand; 0 for global)
 };
 
 struct PlanResult {
@@ -115,7 +116,8 @@ class PlannerManager {
   // Throws quad_core::ConfigError on an invalid configuration.
   explicit PlannerManager(const PlannerConfig& cfg);
 
-  // Forgets the map, the last observations and the trajectory ids (a new episode).
+  // Forgets the map, the last observations and the trajectory ids (a new episode). Global source: the global
+  // map and its ESDF are kept as a cache, unused (MapReady() is false) until SetGlobalMap() is called again.
   void Reset();
 
   // Depth source: integrates the frame and recomputes the ESDF in the local window around the camera (with
@@ -124,8 +126,14 @@ class PlannerManager {
   MapUpdateResult UpdateDepth(std::shared_ptr<const DepthFrame> frame);
   // Remembers the odometry (for the observer). Throws std::invalid_argument on non-finite odometry.
   void UpdateOdometry(const quad_core::VehicleState& odom);
-  // Global source: marks the simulator's occupied voxels (world points); the ESDF is computed when planning.
-  void SetGlobalMap(const std::vector<Eigen::Vector3d>& occupied_points_world);
+  // Global source: marks the simulator's occupied voxels (world points) and computes the ESDF once, over the
+  // box of the obstacles widened by map.esdf_max_distance_m in x and y (beyond it the field only depends on
+  // the ground and ceiling, so the Esdf's clamping gives the whole map's values) and the map's full height.
+  // Plans never recompute it (issue 32). Cost: a full build when the points differ from the last call's (for
+  // config/sim.yaml's 40 x 40 m world at 0.1 m: 0.9-1.1 s of CPU, of which 0.6-0.75 s the ESDF, 43 MB kept;
+  // docs/notebook/2026-12_expert_maps_issue32.md); the same points again (ExpertSession::StartEpisode after
+  // every reset) cost one comparison of the points (about 2 ms). Returns the CPU milliseconds spent.
+  double SetGlobalMap(const std::vector<Eigen::Vector3d>& occupied_points_world);
 
   // Whether Plan() has a map to plan on: a depth frame (depth source) or the global map (global source).
   bool MapReady() const;
@@ -152,12 +160,13 @@ class PlannerManager {
   const VoxelMap& map() const { return map_; }
   // With map.esdf_on_demand the ESDF is the one of the last Plan(), not necessarily of the latest frame.
   const Esdf& esdf() const { return esdf_; }
+  // How many times this manager computed its ESDF (every source; for tests and diagnostics).
+  int64_t esdf_updates() const { return esdf_updates_; }
   std::shared_ptr<const DepthFrame> last_depth() const { return last_depth_; }
   const std::optional<quad_core::VehicleState>& last_odometry() const { return last_odom_; }
 
  private:
-  // Makes sure the ESDF covers the box around both points (global source).
-  void EnsureEsdfCovers(const Eigen::Vector3d& a, const Eigen::Vector3d& b);
+  void UpdateEsdf(const Eigen::Vector3i& min_idx, const Eigen::Vector3i& max_idx);
   double EscapeRadius(const Eigen::Vector3d& start) const;
   // Plan() once the ESDF is up to date.
   PlanResult PlanOnPreparedMap(const PlanRequest& request);
@@ -170,6 +179,9 @@ class PlannerManager {
   KinodynamicAstar search_;
   BsplineOptimizer optimizer_;
   bool global_map_set_ = false;
+  // Global source: the points the map and ESDF were last built from (kept across Reset()).
+  std::optional<std::vector<Eigen::Vector3d>> global_points_;
+  int64_t esdf_updates_ = 0;
   // esdf_on_demand: the window of the latest frame whose ESDF is not computed yet.
   std::optional<std::pair<Eigen::Vector3i, Eigen::Vector3i>> esdf_pending_;
   std::shared_ptr<const DepthFrame> last_depth_;
