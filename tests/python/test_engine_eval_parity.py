@@ -1,7 +1,7 @@
 """The evaluation on both backends (issue 32, "Parity with ROS"): the expert's episodes flown by
 `run_eval --backend ros --episode-mode reset` (roslaunch, lockstep, keyed resets) and by `--backend engine`
-have the same outcomes, reasons, flight times, paths and clearances, bit for bit. docs/RESULTS.md has the 20-episode run on
-9000-9019. Needs the built workspace and ROS."""
+have the same outcomes, reasons, flight times, paths and clearances, bit for bit. docs/RESULTS.md has the
+20-episode run on 9000-9019. Needs the built workspace and ROS."""
 
 from __future__ import annotations
 

@@ -54,6 +54,8 @@ def run_eval(policy: Path, out: Path) -> subprocess.CompletedProcess:
         "10",
         "--out",
         str(out),
+        "--backend",
+        "ros",  # the ROS nodes' lockstep reproducibility (the engine's parity: tests/python/test_engine_*)
     ]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=800)
 

@@ -19,7 +19,8 @@ namespace quad_engine {
 quad_sim::So3Command ToSimCommand(const kr_tracker::So3Command& c) {
   quad_sim::So3Command s;
   s.force_world_N = c.force_world_N;
-  s.q_world_des = Eigen::Quaterniond(c.q_world_des.w(), c.q_world_des.x(), c.q_world_des.y(), c.q_world_des.z());
+  s.q_world_des =
+      Eigen::Quaterniond(c.q_world_des.w(), c.q_world_des.x(), c.q_world_des.y(), c.q_world_des.z());
   s.w_body_des_radps = c.w_body_des_radps;
   if (!(c.kR.isZero(0.0) && c.kOm.isZero(0.0))) {
     s.kR = c.kR;
@@ -49,12 +50,13 @@ ExpertWorker::ExpertWorker(const Configs& configs)
   expert_.SetPlanObserver(buffer_);
   // The privileged expert plans on the simulator's voxel map: without depth noise (whose random stream every
   // rendered frame advances) a frame needs pixels only when a plan made at it is recorded.
-  lazy_depth_ = cfg_.planner.map.source == fast_planner::MapSource::kGlobal && cfg_.sim.camera.noise_std_at_1m_m == 0.0;
+  lazy_depth_ =
+      cfg_.planner.map.source == fast_planner::MapSource::kGlobal && cfg_.sim.camera.noise_std_at_1m_m == 0.0;
   // The camera mount as the simulator's static transform carries it (base_link -> camera).
   const auto& cam = cfg_.sim.camera;
   mount_.p_body_camera = cam.p_body_camera_m;
-  mount_.q_body_camera =
-      Eigen::Quaterniond(cam.q_body_camera.w(), cam.q_body_camera.x(), cam.q_body_camera.y(), cam.q_body_camera.z());
+  mount_.q_body_camera = Eigen::Quaterniond(cam.q_body_camera.w(), cam.q_body_camera.x(),
+                                            cam.q_body_camera.y(), cam.q_body_camera.z());
 }
 
 ExpertWorker::~ExpertWorker() = default;
@@ -99,7 +101,8 @@ EpisodeRun ExpertWorker::Run(const EpisodeSpec& spec, const EpisodeLimits& limit
     z_offset_measured_ = true;
   }
 
-  // The new episode's status reaches the tracker and the expert (its voxel map first, as it is published first).
+  // The new episode's status reaches the tracker and the expert (its voxel map first, as it is published
+  // first).
   const double t0_s = quad_core::StampSeconds(t0_ns);
   tracker_.OnEpisodeStatus(episode_id, t0_s);
   if (cfg_.planner.map.source == fast_planner::MapSource::kGlobal) {
@@ -130,7 +133,8 @@ EpisodeRun ExpertWorker::Run(const EpisodeSpec& spec, const EpisodeLimits& limit
     const bool odom_due = sim_.OdometryDue();
     std::optional<quad_sim::So3Command> command;
     if (odom_due) {
-      const quad_core::VehicleState wire = quad_core::OdometryAsReceived(sim_.Odometry(z_offset_m_, t_s), t_ns);
+      const quad_core::VehicleState wire =
+          quad_core::OdometryAsReceived(sim_.Odometry(z_offset_m_, t_s), t_ns);
       command = ToSimCommand(tracker_.OnOdometry(wire).command);
       try {
         send(expert_.OnOdometry(wire), t_s);

@@ -6,16 +6,20 @@ namespace quad_engine {
 
 PolicyVec::PolicyVec(const Configs& configs, const quad_policy::PolicyNodeConfig& policy,
                      const quad_policy::PolicyMeta& meta, int num_slots, bool with_labeller) {
-  if (num_slots < 1) throw std::invalid_argument("PolicyVec: num_slots " + std::to_string(num_slots) + " < 1");
-  for (int i = 0; i < num_slots; ++i) slots_.push_back(std::make_unique<PolicyEpisode>(configs, policy, meta, with_labeller));
+  if (num_slots < 1)
+    throw std::invalid_argument("PolicyVec: num_slots " + std::to_string(num_slots) + " < 1");
+  for (int i = 0; i < num_slots; ++i)
+    slots_.push_back(std::make_unique<PolicyEpisode>(configs, policy, meta, with_labeller));
 }
 
 PolicyVec::PolicyVec(const Configs& configs, int num_slots) {
-  if (num_slots < 1) throw std::invalid_argument("PolicyVec: num_slots " + std::to_string(num_slots) + " < 1");
+  if (num_slots < 1)
+    throw std::invalid_argument("PolicyVec: num_slots " + std::to_string(num_slots) + " < 1");
   for (int i = 0; i < num_slots; ++i) slots_.push_back(std::make_unique<PolicyEpisode>(configs));
 }
 
-void PolicyVec::RunExpert(const std::vector<EpisodeSpec>& specs, const EvalLimits& limits, const OnDone& on_done) {
+void PolicyVec::RunExpert(const std::vector<EpisodeSpec>& specs, const EvalLimits& limits,
+                          const OnDone& on_done) {
   for (size_t k = 0; k < specs.size(); ++k) {
     PolicyEpisode& e = *slots_[k % slots_.size()];
     e.Reset(specs[k], limits);
@@ -109,14 +113,15 @@ void PolicyVec::RunTorch(const quad_policy::TorchPolicy& policy, const std::vect
               s.push_back(quad_policy::EncodeState(req.state, g, m));
             }
             const std::vector<float> ys = policy.RunBatch(d, s, &o, &goals);
-            ++forward_passes_;
+            ++recovery_passes_;
             for (size_t g = 0; g < goals.size(); ++g)
-              answers.emplace_back(goals[g], std::vector<float>(ys.begin() + g * dim, ys.begin() + (g + 1) * dim));
+              answers.emplace_back(goals[g],
+                                   std::vector<float>(ys.begin() + g * dim, ys.begin() + (g + 1) * dim));
           }
           for (const auto& [g, y] : answers) {
             if (g == goal) return y;
           }
-          ++forward_passes_;  // a goal the batch did not hold (not one of the configured turns)
+          ++recovery_passes_;  // a goal the batch did not hold (not one of the configured turns)
           return policy.Run(req.depth_x, quad_policy::EncodeState(req.state, goal, m), req.state, goal);
         };
         e.Decide(std::vector<float>(y.begin() + j * dim, y.begin() + (j + 1) * dim), ask);

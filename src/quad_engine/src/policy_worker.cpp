@@ -30,8 +30,8 @@ PolicyEpisode::PolicyEpisode(const Configs& configs, const quad_policy::PolicyNo
       meta_(meta),
       sim_(cfg_.sim),
       tracker_(cfg_.tracker, cfg_.vehicle.mass_kg, cfg_.vehicle.gravity_mps2, cfg_.vehicle.MaxThrustN()),
-      decider_(std::make_unique<quad_policy::PolicyDecider>(meta, policy.safety, policy.refusal, policy.recovery,
-                                                            policy.keeping)) {
+      decider_(std::make_unique<quad_policy::PolicyDecider>(meta, policy.safety, policy.refusal,
+                                                            policy.recovery, policy.keeping)) {
   const auto& cam = cfg_.sim.camera;
   mount_.p_body_camera = cam.p_body_camera_m;
   mount_.q_body_camera = cam.q_body_camera;
@@ -61,7 +61,8 @@ void PolicyEpisode::Fly(const fast_planner::ReplannerOutput& out, double clock_s
   if (!out.trajectory) return;
   ++result_.decisions;
   ++result_.counts[out.trajectory->reason == "emergency stop" ? "emergency_stop" : "plan"];
-  if (!tracker_.AddGoal(goal_ids_++, ToGoalSpec(*out.trajectory), clock_s).empty()) ++result_.counts["tracker_rejection"];
+  if (!tracker_.AddGoal(goal_ids_++, ToGoalSpec(*out.trajectory), clock_s).empty())
+    ++result_.counts["tracker_rejection"];
 }
 
 double PolicyEpisode::NowS() const { return quad_core::StampSeconds(t0_ns_ + step_ * dt_ns_); }
@@ -86,7 +87,8 @@ void PolicyEpisode::Reset(const EpisodeSpec& spec, const EvalLimits& limits) {
   quad_sim::EpisodeRequest req;
   req.seed = spec.seed;
   req.start_world_m = Eigen::Vector3d(spec.start_world.x(), spec.start_world.y(), kGroundZM);
-  req.q_start_wxyz = Eigen::Vector4d(std::cos(spec.start_yaw_rad / 2), 0.0, 0.0, std::sin(spec.start_yaw_rad / 2));
+  req.q_start_wxyz =
+      Eigen::Vector4d(std::cos(spec.start_yaw_rad / 2), 0.0, 0.0, std::sin(spec.start_yaw_rad / 2));
   req.goal_world_m = spec.goal_world;
   req.keyed = true;
   req.episode_index = static_cast<uint32_t>(spec.index);
@@ -135,7 +137,8 @@ bool PolicyEpisode::Advance() {
     const double t_s = quad_core::StampSeconds(t_ns);
     command_.reset();
     if (sim_.OdometryDue()) {
-      const quad_core::VehicleState wire = quad_core::OdometryAsReceived(sim_.Odometry(z_offset_m_, t_s), t_ns);
+      const quad_core::VehicleState wire =
+          quad_core::OdometryAsReceived(sim_.Odometry(z_offset_m_, t_s), t_ns);
       command_ = ToSimCommand(tracker_.OnOdometry(wire).command);
       odom_.push_back(wire);
       result_.points.push_back({quad_core::RospySeconds(t_ns), wire.p_world_body.x(), wire.p_world_body.y(),
@@ -155,7 +158,8 @@ bool PolicyEpisode::Advance() {
         p_prev_ = wire.p_world_body;
         result_.min_clearance_m = std::min(result_.min_clearance_m, sim_.ClearanceToObstacles());
         if (t_rel >= next_traj_sample_s_ - 1e-9) {
-          result_.trajectory.push_back({t_rel, wire.p_world_body.x(), wire.p_world_body.y(), wire.p_world_body.z()});
+          result_.trajectory.push_back(
+              {t_rel, wire.p_world_body.x(), wire.p_world_body.y(), wire.p_world_body.z()});
           next_traj_sample_s_ += kTrajectoryPeriodS;
         }
       }
@@ -173,7 +177,8 @@ bool PolicyEpisode::Advance() {
 
 void PolicyEpisode::StepOnce() {
   if (command_) sim_.SetSo3Command(*command_);
-  const bool was_running = sim_.episode().active && !sim_.episode().reached_goal && !sim_.collision().collided;
+  const bool was_running =
+      sim_.episode().active && !sim_.episode().reached_goal && !sim_.collision().collided;
   sim_.Step();
   ++step_;
   ++result_.steps;
@@ -227,7 +232,8 @@ void PolicyEpisode::OnFrame() {
   if (!paired) return Skip("no_odometry");
   const quad_core::VehicleState odom = *paired;
   const auto& k = sim_.camera_intrinsics();
-  std::string problem = quad_policy::DepthSizeProblem(frame->image.width, frame->image.height, k.width, k.height);
+  std::string problem =
+      quad_policy::DepthSizeProblem(frame->image.width, frame->image.height, k.width, k.height);
   if (problem.empty()) problem = quad_policy::StateProblem(odom, odom.t_s);
   if (!problem.empty()) return Skip("bad_input");
   if (stamp - odom.t_s > policy_cfg_.max_odom_age_s) return Skip("stale_odometry");
@@ -246,7 +252,8 @@ void PolicyEpisode::OnFrame() {
   inputs_.camera.T_world_camera = T_world_body * T_body_camera_;
   inputs_.state = odom;
   inputs_.goal_world = *goal_;
-  request_.depth_x = quad_policy::PreprocessDepth(inputs_.depth, meta_.input_height, meta_.input_width, meta_.max_depth_m);
+  request_.depth_x =
+      quad_policy::PreprocessDepth(inputs_.depth, meta_.input_height, meta_.input_width, meta_.max_depth_m);
   request_.state_x = quad_policy::EncodeState(odom, *goal_, meta_);
   request_.state = odom;
   request_.goal_world = *goal_;
@@ -334,8 +341,8 @@ void PolicyEpisode::DirectFrame() {
         status_end_s_ = 0.0;
       } else if (t - t_takeoff_s_ > limits_.takeoff_timeout_s) {
         char buf[160];
-        std::snprintf(buf, sizeof(buf), "take-off to [%.2f, %.2f, %.2f] did not settle", spec_.start_world.x(),
-                      spec_.start_world.y(), spec_.start_world.z());
+        std::snprintf(buf, sizeof(buf), "take-off to [%.2f, %.2f, %.2f] did not settle",
+                      spec_.start_world.x(), spec_.start_world.y(), spec_.start_world.z());
         Finish("takeoff_failed", buf, t);
       }
       return;

@@ -160,7 +160,8 @@ std::string EncodeRun(const EpisodeRun& run) {
 
 EpisodeRun DecodeRun(const std::string& bytes) {
   In in(bytes);
-  if (in.Pod<uint32_t>() != kMagic) throw std::invalid_argument("DecodeRun: not an encoded episode run (magic)");
+  if (in.Pod<uint32_t>() != kMagic)
+    throw std::invalid_argument("DecodeRun: not an encoded episode run (magic)");
   EpisodeRun run;
   run.spec.index = in.Pod<int64_t>();
   run.spec.seed = in.Pod<uint64_t>();

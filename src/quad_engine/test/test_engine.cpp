@@ -31,10 +31,12 @@ StatusView Running() { return StatusView{false, false, true, "running"}; }
 TEST(EpisodeDirector, TakesOffThenGivesTheGoalWithinTolerance) {
   EpisodeLimits limits;
   EpisodeDirector d(Spec(), limits, 1001.0);
-  EXPECT_EQ(d.OnFrame(1001.0, Eigen::Vector3d(1, 2, 0.125), 0.0, Running(), 0), EpisodeDirector::Action::kGoto);
+  EXPECT_EQ(d.OnFrame(1001.0, Eigen::Vector3d(1, 2, 0.125), 0.0, Running(), 0),
+            EpisodeDirector::Action::kGoto);
   d.OnGotoAnswer("");
   // Too far, then too fast, then within tolerance and slow enough.
-  EXPECT_EQ(d.OnFrame(1002.0, Eigen::Vector3d(1, 2, 1.0), 0.0, Running(), 0), EpisodeDirector::Action::kContinue);
+  EXPECT_EQ(d.OnFrame(1002.0, Eigen::Vector3d(1, 2, 1.0), 0.0, Running(), 0),
+            EpisodeDirector::Action::kContinue);
   EXPECT_EQ(d.OnFrame(1003.0, Eigen::Vector3d(1, 2, 1.45), 0.5, Running(), 0),
             EpisodeDirector::Action::kContinue);
   EXPECT_EQ(d.OnFrame(1004.0, Eigen::Vector3d(1, 2, 1.45), 0.1, Running(), 0),
@@ -56,7 +58,8 @@ TEST(EpisodeDirector, EndsOnCollisionTimeoutsAndMaxSamples) {
   {
     EpisodeDirector d(Spec(), limits, 1001.0);
     d.OnFrame(1001.0, Eigen::Vector3d::Zero(), 0.0, Running(), 0);
-    EXPECT_EQ(d.OnFrame(1003.0, Eigen::Vector3d::Zero(), 0.0, Running(), 0), EpisodeDirector::Action::kContinue);
+    EXPECT_EQ(d.OnFrame(1003.0, Eigen::Vector3d::Zero(), 0.0, Running(), 0),
+              EpisodeDirector::Action::kContinue);
     EXPECT_EQ(d.OnFrame(1003.01, Eigen::Vector3d::Zero(), 0.0, Running(), 0), EpisodeDirector::Action::kEnd);
     EXPECT_EQ(d.outcome(), "timeout");
     EXPECT_EQ(d.reason(), "take-off did not reach its altitude");
@@ -69,14 +72,16 @@ TEST(EpisodeDirector, EndsOnCollisionTimeoutsAndMaxSamples) {
   };
   {
     auto d = flying(limits);
-    EXPECT_EQ(d->OnFrame(1003.0, Eigen::Vector3d::Zero(), 1.0, StatusView{false, true, false, "collision with box 4"}, 3),
+    EXPECT_EQ(d->OnFrame(1003.0, Eigen::Vector3d::Zero(), 1.0,
+                         StatusView{false, true, false, "collision with box 4"}, 3),
               EpisodeDirector::Action::kEnd);
     EXPECT_EQ(d->outcome(), "collision");
     EXPECT_EQ(d->reason(), "collision with box 4");
   }
   {
     auto d = flying(limits);
-    EXPECT_EQ(d->OnFrame(1007.0, Eigen::Vector3d::Zero(), 1.0, Running(), 3), EpisodeDirector::Action::kContinue);
+    EXPECT_EQ(d->OnFrame(1007.0, Eigen::Vector3d::Zero(), 1.0, Running(), 3),
+              EpisodeDirector::Action::kContinue);
     EXPECT_EQ(d->OnFrame(1007.1, Eigen::Vector3d::Zero(), 1.0, Running(), 3), EpisodeDirector::Action::kEnd);
     EXPECT_EQ(d->reason(), "no goal within 5 s");
   }
@@ -85,7 +90,8 @@ TEST(EpisodeDirector, EndsOnCollisionTimeoutsAndMaxSamples) {
     l.max_samples = 10;
     l.samples_before = 7;
     auto d = flying(l);
-    EXPECT_EQ(d->OnFrame(1003.0, Eigen::Vector3d::Zero(), 1.0, Running(), 2), EpisodeDirector::Action::kContinue);
+    EXPECT_EQ(d->OnFrame(1003.0, Eigen::Vector3d::Zero(), 1.0, Running(), 2),
+              EpisodeDirector::Action::kContinue);
     EXPECT_EQ(d->OnFrame(1003.1, Eigen::Vector3d::Zero(), 1.0, Running(), 3), EpisodeDirector::Action::kEnd);
     EXPECT_EQ(d->outcome(), "stopped");
     EXPECT_EQ(d->reason(), "10 samples recorded (max_samples=10)");
@@ -195,7 +201,7 @@ TEST(ExpertWorker, ThePrivilegedExpertRendersOnlyRecordedFramesAndRecordsTheSame
   const EpisodeRun b = every.Run(ShortEpisode(2, 13), limits);
   ASSERT_EQ(a.outcome, "goal_reached") << a.reason;
   ASSERT_GT(a.records.size(), 2u);
-  ExpectSameRecords(a, b);  // depth pixels included
+  ExpectSameRecords(a, b);                // depth pixels included
   EXPECT_GT(a.frames, a.records.size());  // most frames were never rendered
 }
 

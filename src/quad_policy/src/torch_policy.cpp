@@ -194,20 +194,23 @@ std::vector<float> TorchPolicy::Run(const std::vector<float>& depth_x, const Sta
   return ToVector(y);
 }
 
-std::vector<float> TorchPolicy::RunBatch(const std::vector<float>& depth_x, const std::vector<StateVector>& state_x,
+std::vector<float> TorchPolicy::RunBatch(const std::vector<float>& depth_x,
+                                         const std::vector<StateVector>& state_x,
                                          const std::vector<VehicleState>* states,
                                          const std::vector<Eigen::Vector3d>* goals) const {
   const PolicyMeta& m = impl_->meta;
   const int64_t n = static_cast<int64_t>(state_x.size());
   const int64_t per = static_cast<int64_t>(m.input_height) * m.input_width;
   if (static_cast<int64_t>(depth_x.size()) != n * per) {
-    throw std::invalid_argument("batched depth input has " + std::to_string(depth_x.size()) + " values, expected " +
-                                std::to_string(n) + " x " + std::to_string(per));
+    throw std::invalid_argument("batched depth input has " + std::to_string(depth_x.size()) +
+                                " values, expected " + std::to_string(n) + " x " + std::to_string(per));
   }
   if (n == 0) return {};
   if (!impl_->has_forward_net) {  // older exports encode the state themselves: one pass per sample
-    if (states == nullptr || goals == nullptr || states->size() != state_x.size() || goals->size() != state_x.size()) {
-      throw std::logic_error(impl_->path + ": without forward_net a batch needs each sample's state and goal");
+    if (states == nullptr || goals == nullptr || states->size() != state_x.size() ||
+        goals->size() != state_x.size()) {
+      throw std::logic_error(impl_->path +
+                             ": without forward_net a batch needs each sample's state and goal");
     }
     std::vector<float> out;
     out.reserve(static_cast<size_t>(n * m.network_output_dim()));

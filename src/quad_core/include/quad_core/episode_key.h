@@ -17,7 +17,7 @@
 
 namespace quad_core {
 
-constexpr uint64_t kEpisodeTimeBaseNs = 1000000000ULL;   // 1 s: the simulator's first stamp
+constexpr uint64_t kEpisodeTimeBaseNs = 1000000000ULL;    // 1 s: the simulator's first stamp
 constexpr uint64_t kEpisodeSpacingNs = 1000000000000ULL;  // 1000 s of sim time per keyed episode
 constexpr uint32_t kMaxEpisodeIndex = 4000000;            // ros::Time's uint32 seconds hold 4.29e9 s
 constexpr uint32_t kUnkeyedEpisodeIdBase = 0x80000000u;   // ids of unkeyed episodes (the node's initial one)

@@ -19,8 +19,8 @@ inline VehicleState OdometryAsReceived(const VehicleState& s, uint64_t stamp_ns)
   VehicleState r;
   r.t_s = StampSeconds(stamp_ns);
   r.p_world_body = s.p_world_body;
-  r.q_world_body = Eigen::Quaterniond(s.q_world_body.w(), s.q_world_body.x(), s.q_world_body.y(),
-                                      s.q_world_body.z());
+  r.q_world_body =
+      Eigen::Quaterniond(s.q_world_body.w(), s.q_world_body.x(), s.q_world_body.y(), s.q_world_body.z());
   r.v_world = s.v_world;
   r.w_body = s.q_world_body * s.w_body;
   return r;

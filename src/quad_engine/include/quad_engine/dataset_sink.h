@@ -1,7 +1,7 @@
 // The dataset an engine run writes: the expert's embedded collector (fast_planner::PlanCollector, the same
-// writer, config and manifest as collect.launch) fed with the records of flown episodes, one episode after the
-// other in the order the caller gives (key order), so that the dataset does not depend on how many workers
-// flew the episodes or in which order they finished.
+// writer, config and manifest as collect.launch) fed with the records of flown episodes, one episode after
+// the other in the order the caller gives (key order), so that the dataset does not depend on how many
+// workers flew the episodes or in which order they finished.
 #pragma once
 
 #include <fast_planner/plan_collector.h>

@@ -1,6 +1,6 @@
-// The rollout engine's vocabulary (issue 32, docs/engine.md): configs loaded once per worker, an episode's key
-// and spec, the collection's episode logic (what nodes/episode_manager.py decides at each held frame) and what
-// a flown episode returns. ROS-free.
+// The rollout engine's vocabulary (issue 32, docs/engine.md): configs loaded once per worker, an episode's
+// key and spec, the collection's episode logic (what nodes/episode_manager.py decides at each held frame) and
+// what a flown episode returns. ROS-free.
 #pragma once
 
 #include <cpp_data_collector/plan_record.h>

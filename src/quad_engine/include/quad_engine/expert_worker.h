@@ -1,6 +1,6 @@
 // One engine worker of the expert (issue 32, docs/engine.md): the simulator, the tracker and the expert with
-// its data collector connected in one thread exactly as collect.launch connects the nodes in lockstep, and the
-// episode manager's logic (EpisodeDirector). Like the nodes, one worker keeps its simulator, tracker and
+// its data collector connected in one thread exactly as collect.launch connects the nodes in lockstep, and
+// the episode manager's logic (EpisodeDirector). Like the nodes, one worker keeps its simulator, tracker and
 // expert across episodes; every episode is keyed (quad_core/episode_key.h), so its flight and records depend
 // on its key only. Per physics step at sim time t (the simulator node's loop):
 //
@@ -45,7 +45,9 @@ class ExpertWorker {
   // Whether frames are rendered only for the records (the privileged expert without depth noise: the default
   // then); false renders every frame (what the ROS simulator does; a test compares the two).
   bool lazy_depth() const { return lazy_depth_; }
-  void set_lazy_depth(bool lazy) { lazy_depth_ = lazy && cfg_.planner.map.source == fast_planner::MapSource::kGlobal; }
+  void set_lazy_depth(bool lazy) {
+    lazy_depth_ = lazy && cfg_.planner.map.source == fast_planner::MapSource::kGlobal;
+  }
 
  private:
   Configs cfg_;
@@ -56,7 +58,7 @@ class ExpertWorker {
   fast_planner::CameraMount mount_;
   double z_offset_m_ = 0.0;
   bool z_offset_measured_ = false;
-  bool lazy_depth_ = false;  // frames rendered only for the records (privileged expert, no depth noise)
+  bool lazy_depth_ = false;    // frames rendered only for the records (privileged expert, no depth noise)
   uint64_t next_goal_id_ = 1;  // the tracker node's TrackBspline goal ids
 };
 

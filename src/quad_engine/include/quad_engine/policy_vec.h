@@ -15,8 +15,8 @@ namespace quad_engine {
 
 class PolicyVec {
  public:
-  PolicyVec(const Configs& configs, const quad_policy::PolicyNodeConfig& policy, const quad_policy::PolicyMeta& meta,
-            int num_slots, bool with_labeller);
+  PolicyVec(const Configs& configs, const quad_policy::PolicyNodeConfig& policy,
+            const quad_policy::PolicyMeta& meta, int num_slots, bool with_labeller);
 
   // num_slots expert controllers (the expert's evaluation on the engine; see RunExpert).
   PolicyVec(const Configs& configs, int num_slots);
@@ -27,9 +27,9 @@ class PolicyVec {
   // Advances every slot that is neither done nor waiting to its next decision; returns the slots waiting.
   std::vector<int> AdvanceAll();
 
-  // Flies `specs` with the LibTorch policy: each slot takes the next episode when its episode ends; each round
-  // the waiting slots are answered by one RunBatch (the recovery's turned goals by single passes). on_done
-  // is called with each finished episode's index in `specs` and its result (and labels) as it ends.
+  // Flies `specs` with the LibTorch policy: each slot takes the next episode when its episode ends; each
+  // round the waiting slots are answered by one RunBatch (the recovery's turned goals by single passes).
+  // on_done is called with each finished episode's index in `specs` and its result (and labels) as it ends.
   using OnDone = std::function<void(size_t spec_index, PolicyEpisode& episode)>;
   void RunTorch(const quad_policy::TorchPolicy& policy, const std::vector<EpisodeSpec>& specs,
                 const EvalLimits& limits, const OnDone& on_done);
@@ -37,13 +37,15 @@ class PolicyVec {
   // Flies `specs` with the expert controllers, one episode per slot at a time.
   void RunExpert(const std::vector<EpisodeSpec>& specs, const EvalLimits& limits, const OnDone& on_done);
 
-  // Statistics of RunTorch: batched forward passes and the decisions they answered.
+  // Statistics of RunTorch: batched forward passes and the decisions they answered; the recovery's passes
+  // (one batch of every turned goal per refused decision that asks).
   uint64_t forward_passes() const { return forward_passes_; }
   uint64_t batched_decisions() const { return batched_decisions_; }
+  uint64_t recovery_passes() const { return recovery_passes_; }
 
  private:
   std::vector<std::unique_ptr<PolicyEpisode>> slots_;
-  uint64_t forward_passes_ = 0, batched_decisions_ = 0;
+  uint64_t forward_passes_ = 0, batched_decisions_ = 0, recovery_passes_ = 0;
 };
 
 }  // namespace quad_engine

@@ -1,10 +1,10 @@
 // Closed-loop evaluation in the engine (issue 32, docs/engine.md): one keyed evaluation episode of the
-// simulator, the tracker and a controller as launch/infer.launch connects them: the learned policy (policy_node.cpp: a decision at every depth
-// frame from the odometry paired with it, the trajectory to the tracker before the frame is released), driven
-// by the evaluation runner's logic (quad_il.evaluation.runner: take-off, goal, end), or the expert (flight
-// mode, as the expert's evaluation launch connects fast_planner_node); optionally, with the policy, the
-// expert in labeller mode beside it (its plan from exactly the policy's state at every frame: DAgger labels,
-// the Gymnasium env's info).
+// simulator, the tracker and a controller as launch/infer.launch connects them: the learned policy
+// (policy_node.cpp: a decision at every depth frame from the odometry paired with it, the trajectory to the
+// tracker before the frame is released), driven by the evaluation runner's logic (quad_il.evaluation.runner:
+// take-off, goal, end), or the expert (flight mode, as the expert's evaluation launch connects
+// fast_planner_node); optionally, with the policy, the expert in labeller mode beside it (its plan from
+// exactly the policy's state at every frame: DAgger labels, the Gymnasium env's info).
 //
 // The network is not called here: Advance() steps the episode to the next frame at which the policy decides
 // and stops there with the network's inputs (preprocessed as the exported file preprocesses them); the caller
@@ -43,7 +43,7 @@ struct EvalLimits {
 // What the network gets for one decision, and the state it is made from.
 struct DecisionRequest {
   double stamp_s = 0.0;
-  std::vector<float> depth_x;   // input_height x input_width, the file's preprocessing
+  std::vector<float> depth_x;  // input_height x input_width, the file's preprocessing
   quad_policy::StateVector state_x{};
   quad_core::VehicleState state;  // the odometry paired with the frame
   Eigen::Vector3d goal_world = Eigen::Vector3d::Zero();
@@ -80,7 +80,8 @@ class PolicyEpisode {
   // config of `configs`) in labeller mode beside the policy. Throws on an invalid config.
   PolicyEpisode(const Configs& configs, const quad_policy::PolicyNodeConfig& policy,
                 const quad_policy::PolicyMeta& meta, bool with_labeller);
-  // The expert (planner config of `configs`, flight mode) as controller: Advance() never stops for a decision.
+  // The expert (planner config of `configs`, flight mode) as controller: Advance() never stops for a
+  // decision.
   explicit PolicyEpisode(const Configs& configs);
   ~PolicyEpisode();
 
@@ -108,8 +109,8 @@ class PolicyEpisode {
   const PolicyEpisodeResult& result() const { return result_; }
   // The labeller's records of this episode (the expert's plans at the policy's states; DAgger datasets).
   std::vector<OwnedRecord> TakeLabelRecords();
-  // Keep the labeller's records of every n-th frame only (1: every frame; the labeller still sees every frame,
-  // its map needs them). Throws std::invalid_argument for n < 1.
+  // Keep the labeller's records of every n-th frame only (1: every frame; the labeller still sees every
+  // frame, its map needs them). Throws std::invalid_argument for n < 1.
   void set_label_stride(int n);
   const quad_core::CameraIntrinsics& intrinsics() const { return sim_.camera_intrinsics(); }
   const quad_policy::PolicyMeta& meta() const { return meta_; }
@@ -120,8 +121,8 @@ class PolicyEpisode {
  private:
   enum class Phase { kTakeoff, kTakingOff, kFlying };
   void StepOnce();
-  void OnFrame();               // the frame at the current step: labeller, then the policy's checks
-  void DirectFrame();           // the evaluation runner's decision at the current frame
+  void OnFrame();      // the frame at the current step: labeller, then the policy's checks
+  void DirectFrame();  // the evaluation runner's decision at the current frame
   void Finish(const std::string& outcome, const std::string& reason, double t_end_s);
   void Skip(const std::string& status) { ++result_.counts[status]; }
   void Fly(const fast_planner::ReplannerOutput& out, double clock_s);  // the expert's trajectories
@@ -132,8 +133,8 @@ class PolicyEpisode {
   quad_policy::PolicyMeta meta_;
   quad_sim::Simulator sim_;
   kr_tracker::TrackerManager tracker_;
-  std::unique_ptr<quad_policy::PolicyDecider> decider_;   // the policy controller
-  std::unique_ptr<fast_planner::ExpertSession> expert_;   // the expert controller (flight mode)
+  std::unique_ptr<quad_policy::PolicyDecider> decider_;  // the policy controller
+  std::unique_ptr<fast_planner::ExpertSession> expert_;  // the expert controller (flight mode)
   std::unique_ptr<fast_planner::ExpertSession> labeller_;
   std::shared_ptr<RecordBuffer> label_records_;
   fast_planner::CameraMount mount_;
@@ -150,12 +151,13 @@ class PolicyEpisode {
   double status_end_s_ = 0.0;
   double last_depth_s_ = 0.0;  // the expert controller's newest frame (its goal's plan time)
   int label_stride_ = 1;
-  uint64_t label_frames_ = 0;  // frames the labeller saw in this episode  // the status's sim time when the simulator ended the episode (rospy seconds)
+  uint64_t label_frames_ = 0;  // frames the labeller saw in this episode  // the status's sim time when the
+                               // simulator ended the episode (rospy seconds)
   std::optional<Eigen::Vector3d> goal_;
   std::deque<quad_core::VehicleState> odom_;
   std::optional<uint64_t> last_decision_ns_;
-  bool frame_open_ = false;      // the current step's frame still needs the runner's decision and the step
-  bool pending_ = false;         // a decision request waits for Decide()
+  bool frame_open_ = false;  // the current step's frame still needs the runner's decision and the step
+  bool pending_ = false;     // a decision request waits for Decide()
   std::optional<quad_sim::So3Command> command_;
   bool done_ = true;
   bool hovering_ = false;

@@ -1,5 +1,5 @@
-// quad_engine_py: the rollout engine bound into Python (quad_il.engine wraps it; docs/engine.md). Episodes run
-// with the GIL released, so several Python threads (or Ray actors, one process each) fly in parallel.
+// quad_engine_py: the rollout engine bound into Python (quad_il.engine wraps it; docs/engine.md). Episodes
+// run with the GIL released, so several Python threads (or Ray actors, one process each) fly in parallel.
 #include <pybind11/functional.h>
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
@@ -36,7 +36,8 @@ py::dict RecordDict(const OwnedRecord& o) {
 }
 
 EpisodeSpec SpecOf(const py::tuple& t) {
-  if (t.size() != 5) throw std::invalid_argument("an episode spec is (index, seed, start, start_yaw_rad, goal)");
+  if (t.size() != 5)
+    throw std::invalid_argument("an episode spec is (index, seed, start, start_yaw_rad, goal)");
   return EpisodeSpec{t[0].cast<int64_t>(), t[1].cast<uint64_t>(), V3(t[2].cast<std::array<double, 3>>()),
                      t[3].cast<double>(), V3(t[4].cast<std::array<double, 3>>())};
 }
@@ -49,9 +50,10 @@ py::dict ResultDict(const PolicyEpisodeResult& r, const quad_sim::World& world) 
   py::list boxes;  // center, quaternion x y z w, size (the world markers' fields)
   for (const quad_sim::OrientedBox& b : world.boxes) {
     const auto& q = b.q_world_box;
-    boxes.append(py::make_tuple(std::array<double, 3>{b.center_world_m.x(), b.center_world_m.y(), b.center_world_m.z()},
-                                std::array<double, 4>{q.x(), q.y(), q.z(), q.w()},
-                                std::array<double, 3>{b.size_m.x(), b.size_m.y(), b.size_m.z()}));
+    boxes.append(py::make_tuple(
+        std::array<double, 3>{b.center_world_m.x(), b.center_world_m.y(), b.center_world_m.z()},
+        std::array<double, 4>{q.x(), q.y(), q.z(), q.w()},
+        std::array<double, 3>{b.size_m.x(), b.size_m.y(), b.size_m.z()}));
   }
   d["boxes"] = boxes;
   d["outcome"] = r.outcome;
@@ -80,7 +82,8 @@ py::dict RequestDict(const DecisionRequest& r, const quad_policy::PolicyMeta& m)
   d["depth"] = FloatArray(r.depth_x, {m.input_height, m.input_width});
   d["state"] = FloatArray(std::vector<float>(r.state_x.begin(), r.state_x.end()), {quad_policy::kStateDim});
   d["goal"] = std::array<double, 3>{r.goal_world.x(), r.goal_world.y(), r.goal_world.z()};
-  d["p_world_body"] = std::array<double, 3>{r.state.p_world_body.x(), r.state.p_world_body.y(), r.state.p_world_body.z()};
+  d["p_world_body"] =
+      std::array<double, 3>{r.state.p_world_body.x(), r.state.p_world_body.y(), r.state.p_world_body.z()};
   d["v_world"] = std::array<double, 3>{r.state.v_world.x(), r.state.v_world.y(), r.state.v_world.z()};
   const auto& q = r.state.q_world_body;
   d["q_world_body_xyzw"] = std::array<double, 4>{q.x(), q.y(), q.z(), q.w()};
@@ -114,7 +117,9 @@ PYBIND11_MODULE(quad_engine_py, m) {
   m.def(
       "load_configs",
       [](const std::string& sim, const std::string& planner, const std::string& tracker,
-         const std::string& vehicle) { return LoadConfigs(ConfigPaths{sim, planner, tracker, vehicle}); },
+         const std::string& vehicle) {
+        return LoadConfigs(ConfigPaths{sim, planner, tracker, vehicle});
+      },
       py::arg("sim"), py::arg("planner"), py::arg("tracker"), py::arg("vehicle"),
       "Loads config/sim.yaml, planner.yaml, tracker.yaml and vehicle.yaml (errors name the file and key).");
 
@@ -213,7 +218,8 @@ PYBIND11_MODULE(quad_engine_py, m) {
       .def_property_readonly("path", &quad_policy::TorchPolicy::path);
 
   py::class_<PolicyVec>(m, "PolicyVec", "N keyed evaluation episodes of the policy, decided in batches.")
-      .def(py::init<const Configs&, const quad_policy::PolicyNodeConfig&, const quad_policy::PolicyMeta&, int, bool>(),
+      .def(py::init<const Configs&, const quad_policy::PolicyNodeConfig&, const quad_policy::PolicyMeta&, int,
+                    bool>(),
            py::arg("configs"), py::arg("policy_config"), py::arg("meta"), py::arg("num_slots"),
            py::arg("with_labeller") = false)
       .def_property_readonly("size", &PolicyVec::size)
@@ -239,8 +245,9 @@ PYBIND11_MODULE(quad_engine_py, m) {
             return v.slot(i).Advance();
           },
           py::arg("slot"))
-      .def("request", [](PolicyVec& v, int i) { return RequestDict(v.slot(i).request(), v.slot(i).meta()); },
-           py::arg("slot"))
+      .def(
+          "request", [](PolicyVec& v, int i) { return RequestDict(v.slot(i).request(), v.slot(i).meta()); },
+          py::arg("slot"))
       .def(
           "decide",
           [](PolicyVec& v, int i, const py::array_t<float, py::array::c_style | py::array::forcecast>& y,
@@ -268,11 +275,14 @@ PYBIND11_MODULE(quad_engine_py, m) {
             return d;
           },
           py::arg("slot"), py::arg("y"), py::arg("ask") = py::none())
-      .def("done", [](PolicyVec& v, int i) { return v.slot(i).done(); }, py::arg("slot"))
-      .def("result", [](PolicyVec& v, int i) { return ResultDict(v.slot(i).result(), v.slot(i).world()); },
-           py::arg("slot"))
-      .def("take_label_run", [](PolicyVec& v, int i) { return LabelRun(v.slot(i)); }, py::arg("slot"),
-           "The labeller's records of the slot's episode so far, as an EpisodeRun (DatasetSink.write).")
+      .def(
+          "done", [](PolicyVec& v, int i) { return v.slot(i).done(); }, py::arg("slot"))
+      .def(
+          "result", [](PolicyVec& v, int i) { return ResultDict(v.slot(i).result(), v.slot(i).world()); },
+          py::arg("slot"))
+      .def(
+          "take_label_run", [](PolicyVec& v, int i) { return LabelRun(v.slot(i)); }, py::arg("slot"),
+          "The labeller's records of the slot's episode so far, as an EpisodeRun (DatasetSink.write).")
       .def(
           "run_torch",
           [](PolicyVec& v, const quad_policy::TorchPolicy& policy, const std::vector<py::tuple>& specs,
@@ -292,12 +302,12 @@ PYBIND11_MODULE(quad_engine_py, m) {
           py::arg("on_done"),
           "Flies the specs with the LibTorch policy, one batched forward pass per round of decisions.")
       .def_static(
-          "experts", [](const Configs& c, int n) { return std::make_unique<PolicyVec>(c, n); }, py::arg("configs"),
-          py::arg("num_slots"), "num_slots expert controllers (the expert's evaluation).")
+          "experts", [](const Configs& c, int n) { return std::make_unique<PolicyVec>(c, n); },
+          py::arg("configs"), py::arg("num_slots"), "num_slots expert controllers (the expert's evaluation).")
       .def(
           "run_expert",
-          [](PolicyVec& v, const std::vector<py::tuple>& specs, double takeoff_timeout_s, double episode_timeout_s,
-             const std::function<void(size_t, py::dict)>& on_done) {
+          [](PolicyVec& v, const std::vector<py::tuple>& specs, double takeoff_timeout_s,
+             double episode_timeout_s, const std::function<void(size_t, py::dict)>& on_done) {
             std::vector<EpisodeSpec> s;
             for (const py::tuple& t : specs) s.push_back(SpecOf(t));
             py::gil_scoped_release release;
@@ -314,5 +324,6 @@ PYBIND11_MODULE(quad_engine_py, m) {
           },
           py::arg("n"), "Keep the labels of every n-th frame (the labeller still integrates every frame).")
       .def_property_readonly("forward_passes", &PolicyVec::forward_passes)
-      .def_property_readonly("batched_decisions", &PolicyVec::batched_decisions);
+      .def_property_readonly("batched_decisions", &PolicyVec::batched_decisions)
+      .def_property_readonly("recovery_passes", &PolicyVec::recovery_passes);
 }

@@ -184,8 +184,7 @@ class EngineBench:
 
     # The batched policy.
     def part_policy(self) -> None:
-        import torch
-
+        from quad_il.engine import native
         from quad_il.inference.random_policy import export_random_policy
         from quad_il.learning.config import load_config
         from quad_il.tools import config_overlay
@@ -209,26 +208,27 @@ class EngineBench:
             )
         policy_yaml = config_overlay.resolve(self.root / "config" / "policy.yaml")
         num_threads = int(yaml.safe_load(Path(policy_yaml).read_text())["num_threads"])
-        # PolicyVec does not set LibTorch's threads itself; this process shares one libtorch with the module.
-        torch.set_num_threads(num_threads)
+        # The engine's evaluation and DAgger rounds set the config's threads the same way.
+        native().configure_torch_threads(num_threads)
         log(f"policy: {what}, {num_threads} torch thread(s), {self.policy_timeout_s:g} s sim per episode")
-        rtf, passes, decisions = self._fly_policy(policy_file, "shield")
+        rtf, passes, decisions, recovery = self._fly_policy(policy_file, "shield")
         print(
             f"policy batch (shield): {passes} forward passes, {decisions} batched decisions, "
-            f"{decisions / max(passes, 1):.2f} decisions per pass (batch of {POLICY_BATCH})",
+            f"{decisions / max(passes, 1):.2f} decisions per pass (batch of {POLICY_BATCH}); "
+            f"{recovery} recovery passes (each: every turned goal of one refused decision)",
             flush=True,
         )
         bench("engine_policy_rtf_batch8", rtf, "x")
         bench("engine_policy_decisions_per_pass", decisions / max(passes, 1), "decisions")
         # The same episodes at the safety tier (no recovery, final approach or keeping), for comparison: on a
-        # refused decision the shield's recovery asks the network again, goal by goal, in single passes.
-        rtf_safety, _, _ = self._fly_policy(policy_file, "safety")
+        # refused decision the shield's recovery asks the network again for its turned goals (one pass).
+        rtf_safety, _, _, _ = self._fly_policy(policy_file, "safety")
         bench("engine_policy_rtf_batch8_safety_tier", rtf_safety, "x")
 
-    def _fly_policy(self, policy_file: Path, tier: str) -> tuple[float, int, int]:
+    def _fly_policy(self, policy_file: Path, tier: str) -> tuple[float, int, int, int]:
         """Flies the POLICY_BATCH evaluation episodes in one PolicyVec with config/policy.yaml at `tier`;
         returns (sim seconds summed over the episodes / wall seconds of run_torch, forward passes, batched
-        decisions)."""
+        decisions, recovery passes)."""
         from quad_il.collection.episodes import StartGoalConfig, plan_eval_episodes
         from quad_il.engine import native
         from quad_il.evaluation.tiers import render_tier_config
@@ -272,7 +272,7 @@ class EngineBench:
             f"{POLICY_SEEDS[0]}-{POLICY_SEEDS[-1]}) in one PolicyVec: {sim_s:.1f} s sim in {wall_s:.1f} s "
             f"wall; outcomes {outcomes}; decision verdicts {counts}"
         )
-        return sim_s / wall_s, int(vec.forward_passes), int(vec.batched_decisions)
+        return sim_s / wall_s, int(vec.forward_passes), int(vec.batched_decisions), int(vec.recovery_passes)
 
     # Ray.
     def part_ray(self) -> None:

@@ -53,9 +53,9 @@ class TorchPolicy {
 
   // One forward pass for a batch (the rollout engine's episodes deciding at the same sim time): depth_x holds
   // n preprocessed depth inputs one after the other, state_x n state vectors (files with forward_net only).
-  // Returns n * network_output_dim values, sample by sample. A file without forward_net (older exports) is run
-  // once per sample with the samples' odometry and goals (`states`, `goals`; std::logic_error without them).
-  // Throws std::invalid_argument on wrong sizes.
+  // Returns n * network_output_dim values, sample by sample. A file without forward_net (older exports) is
+  // run once per sample with the samples' odometry and goals (`states`, `goals`; std::logic_error without
+  // them). Throws std::invalid_argument on wrong sizes.
   std::vector<float> RunBatch(const std::vector<float>& depth_x, const std::vector<StateVector>& state_x,
                               const std::vector<VehicleState>* states = nullptr,
                               const std::vector<Eigen::Vector3d>* goals = nullptr) const;
