@@ -219,13 +219,15 @@ def plan_eval_episodes(seeds: list[int], episodes: int, start_goal: StartGoalCon
         raise ValueError("at least one world seed is needed")
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
-    out = []
-    for i in range(episodes):
-        seed = int(seeds[i % len(seeds)])
-        rng = np.random.default_rng([seed, i, EVAL_STREAM])
-        start, yaw, goal = sample_start_goal(start_goal, rng)
-        out.append(EpisodeSpec(i, seed, tuple(map(float, start)), float(yaw), tuple(map(float, goal))))
-    return out
+    return [eval_episode(int(seeds[i % len(seeds)]), i, start_goal) for i in range(episodes)]
+
+
+def eval_episode(seed: int, index: int, start_goal: StartGoalConfig) -> EpisodeSpec:
+    """The evaluation's episode `index` in the world of `seed`: its start and goal drawn from an RNG seeded
+    with (seed, index, EVAL_STREAM)."""
+    rng = np.random.default_rng([seed, index, EVAL_STREAM])
+    start, yaw, goal = sample_start_goal(start_goal, rng)
+    return EpisodeSpec(index, seed, tuple(map(float, start)), float(yaw), tuple(map(float, goal)))
 
 
 @dataclass(frozen=True)

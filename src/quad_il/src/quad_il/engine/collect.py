@@ -19,7 +19,6 @@ episode): a run with max_samples is not the collect.launch one.
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 import time
 from collections.abc import Sequence
@@ -161,7 +160,7 @@ def collect(
         total=cfg.episodes, initial=first, unit="ep", desc="collect", disable=not progress, smoothing=0.1
     )
     pending: dict[int, object] = {}
-    previous_sigint = signal.getsignal(signal.SIGINT)
+    samples_before = samples
     try:
         for spec, run in runner.run(specs, limits):
             pending[spec.index] = run
@@ -176,9 +175,8 @@ def collect(
                 sim_s += r.sim_s
                 outcomes[r.outcome] = outcomes.get(r.outcome, 0) + 1
                 bar.update(1)
-                bar.set_postfix(
-                    samples=samples, rec_per_s=f"{samples / max(time.monotonic() - wall0, 1e-9):.0f}"
-                )
+                rate = (samples - samples_before) / max(time.monotonic() - wall0, 1e-9)
+                bar.set_postfix(samples=samples, rec_per_s=f"{rate:.0f}")
                 if cfg.max_samples and samples >= cfg.max_samples:
                     stopped = True
                     break
@@ -188,7 +186,6 @@ def collect(
         interrupted = True
     finally:
         bar.close()
-        signal.signal(signal.SIGINT, previous_sigint)
         log.close()
         ok, text = sink.finalize()
         print(f"[engine collect] {text}", file=sys.stdout if ok else sys.stderr, flush=True)
@@ -205,9 +202,7 @@ def collect(
         "outcomes": outcomes,
         "sim_s": round(sim_s, 6),
         "wall_s": round(wall_s, 3),
-        "records_per_s": round((samples - sum(o.samples for o in previous)) / wall_s, 3)
-        if wall_s > 0
-        else 0.0,
+        "records_per_s": round((samples - samples_before) / wall_s, 3) if wall_s > 0 else 0.0,
     }
     (out / "collect_summary.yaml").write_text(yaml.safe_dump(summary, sort_keys=False))
     if not ok:

@@ -34,7 +34,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from quad_il.collection.episodes import StartGoalConfig, load_collect_config, plan_eval_episodes
+from quad_il.collection.episodes import StartGoalConfig, eval_episode, load_collect_config
 from quad_il.engine import native
 from quad_il.tools import config_overlay
 from quad_il.tools.repo import repo_root
@@ -111,7 +111,7 @@ class _Engine:
         self.action_space = spaces.Box(-np.inf, np.inf, (m.network_output_dim,), np.float32)
 
     def spec(self, index: int, world_seed: int):
-        s = plan_eval_episodes([world_seed], index + 1, self.start_goal)[index]
+        s = eval_episode(world_seed, index, self.start_goal)
         return (s.index, s.seed, s.start_world, s.start_yaw_rad, s.goal_world)
 
     def start(self, slot: int, index: int, world_seed: int) -> None:
