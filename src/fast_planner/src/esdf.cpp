@@ -9,6 +9,46 @@ namespace fast_planner {
 
 namespace {
 constexpr int32_t kInf = kEdtInfinity;
+// "Beyond the truncation" inside the windowed passes: leaves room for + radius^2 without overflow.
+constexpr int32_t kBig = 1 << 30;
+// The windowed passes are used up to this truncation radius (voxels); beyond, the lower envelope's O(n) wins.
+constexpr int kMaxWindowRadius = 40;
+
+// o[x] = min(o[x], s[x] + dd) over a row: the inner loop of the windowed passes, compiled for AVX2 too (the
+// loader picks the variant the CPU runs).
+__attribute__((target_clones("avx2", "default"))) void MinPlus(int32_t* o, const int32_t* s, int32_t dd,
+                                                               int nx) {
+  for (int x = 0; x < nx; ++x) o[x] = std::min(o[x], s[x] + dd);
+}
+
+// One pass of the truncated squared distance transform along the rows of a block, for every x at once:
+// out row q = min over |d| <= radius (0 <= q + d < len) of in row q + d plus d^2, then values above max_sq
+// become kEdtInfinity. `in` holds len rows of nx values (below max_sq, or kBig); rows without a finite value
+// (finite[q] == 0) are skipped as sources. Equal to the exact transform followed by the truncation: a sample
+// farther than radius (radius^2 <= max_sq < (radius + 1)^2) adds more than max_sq.
+void WindowedPass(const int32_t* in, const uint8_t* finite, int len, int nx, int radius, int32_t max_sq,
+                  int32_t* out, int64_t out_stride) {
+  for (int q = 0; q < len; ++q) {
+    int32_t* o = out + q * out_stride;
+    std::fill(o, o + nx, kBig);
+    const int lo = std::max(0, q - radius), hi = std::min(len - 1, q + radius);
+    for (int r = lo; r <= hi; ++r) {
+      if (!finite[r]) continue;
+      MinPlus(o, in + static_cast<int64_t>(r) * nx, (r - q) * (r - q), nx);
+    }
+    for (int x = 0; x < nx; ++x) o[x] = o[x] > max_sq ? kInf : o[x];
+  }
+}
+
+// Copies `nx` values to `dst` with kEdtInfinity as kBig; returns whether any is finite.
+uint8_t CopyAsBig(const int32_t* src, int nx, int32_t* dst) {
+  int32_t lowest = kBig;
+  for (int x = 0; x < nx; ++x) {
+    dst[x] = std::min(src[x], kBig);
+    lowest = std::min(lowest, dst[x]);
+  }
+  return lowest < kBig ? 1 : 0;
+}
 }  // namespace
 
 void DistanceTransform1d(const int32_t* f, int n, int32_t* out, int* v, int64_t* z_num, int64_t* z_den) {
@@ -121,7 +161,8 @@ void Esdf::Update(const VoxelMap& map, const Eigen::Vector3i& min_idx, const Eig
     }
   }
 
-  // Then the lower envelope of parabolas along y and z, column by column of an (len x nx) block whose rows
+  // Then (the inside field, and the outside one without a short truncation) the lower envelope of parabolas
+  // along y and z, column by column of an (len x nx) block whose rows
   // are x rows of the field: for y the block is a z slice in place, for z the rows are gathered into a buffer
   // first (a z column strides over whole slices, which thrashes the cache and the TLB). Columns that are all
   // zero (inside obstacles for the outside field, in free space for the inside field) or have no finite value
@@ -152,10 +193,31 @@ void Esdf::Update(const VoxelMap& map, const Eigen::Vector3i& min_idx, const Eig
     }
     return changed;
   };
-  block_.resize(static_cast<size_t>(n_.x()) * n_.z());
-  std::vector<uint8_t> has_obstacle(n_.x());
+  // The outside field (every column near an obstacle) by windowed passes over whole rows when the truncation
+  // is short; the inside field (only columns through obstacles) by the lower envelope, column by column.
+  const int radius = static_cast<int>(std::floor(std::sqrt(static_cast<double>(max_sq))));
+  const bool windowed = max_sq < kInf - 1 && radius <= kMaxWindowRadius;
+  block_.resize(static_cast<size_t>(n_.x()) * std::max(n_.y(), n_.z()));
+  std::vector<uint8_t> has_obstacle(n_.x()), finite(std::max(n_.y(), n_.z()));
   for (const bool inside : {false, true}) {
     std::vector<int32_t>& field = inside ? sq_in_ : sq_out_;
+    if (!inside && windowed) {
+      for (int z = 0; z < n_.z(); ++z) {  // along y: a z slice
+        int32_t* s = field.data() + z * slice;
+        for (int y = 0; y < n_.y(); ++y) {
+          finite[y] = CopyAsBig(s + static_cast<int64_t>(y) * n_.x(), n_.x(), block_.data() + y * n_.x());
+        }
+        WindowedPass(block_.data(), finite.data(), n_.y(), n_.x(), radius, max_sq, s, n_.x());
+      }
+      for (int y = 0; y < n_.y(); ++y) {  // along z: the x rows of one y gathered
+        int32_t* s = field.data() + static_cast<int64_t>(y) * n_.x();
+        for (int z = 0; z < n_.z(); ++z) {
+          finite[z] = CopyAsBig(s + z * slice, n_.x(), block_.data() + static_cast<int64_t>(z) * n_.x());
+        }
+        WindowedPass(block_.data(), finite.data(), n_.z(), n_.x(), radius, max_sq, s, slice);
+      }
+      continue;
+    }
     for (int z = 0; z < n_.z(); ++z) {
       if (inside) {
         std::fill(has_obstacle.begin(), has_obstacle.end(), uint8_t{0});

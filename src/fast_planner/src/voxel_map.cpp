@@ -72,6 +72,17 @@ VoxelMap::VoxelMap(const MapConfig& cfg) : cfg_(cfg) {
   l_max_ = LogOddsOf(d.prob_max);
   l_occupied_ = LogOddsOf(d.prob_occupied);
 
+  // inflation_offsets_ is ordered by (dz, dy, dx) and a ball's x extent is contiguous for every (dy, dz).
+  for (size_t i = 0; i < inflation_offsets_.size();) {
+    size_t j = i;
+    while (j < inflation_offsets_.size() && inflation_offsets_[j].y() == inflation_offsets_[i].y() &&
+           inflation_offsets_[j].z() == inflation_offsets_[i].z()) {
+      ++j;
+    }
+    inflation_runs_.emplace_back(Linear(inflation_offsets_[i]), static_cast<int>(j - i));
+    i = j;
+  }
+
   const size_t n = static_cast<size_t>(size_.x()) * size_.y() * size_.z();
   log_odds_.assign(n, 0.0f);
   occupied_.assign(n, 0);
@@ -131,6 +142,16 @@ int64_t VoxelMap::CountOccupied() const { return std::count(occupied_.begin(), o
 
 void VoxelMap::SetOccupiedFlag(int64_t lin, const Eigen::Vector3i& idx, bool occupied) {
   occupied_[lin] = occupied ? 1 : 0;
+  const int r = inflation_voxels_;
+  if ((idx.array() >= r).all() && (idx.array() < size_.array() - r).all()) {
+    uint16_t* c = inflate_count_.data() + lin;
+    const uint16_t step = occupied ? 1 : static_cast<uint16_t>(-1);  // uint16 wrap-around: -1
+    for (const auto& [offset, length] : inflation_runs_) {
+      uint16_t* run = c + offset;
+      for (int k = 0; k < length; ++k) run[k] = static_cast<uint16_t>(run[k] + step);
+    }
+    return;
+  }
   for (const auto& o : inflation_offsets_) {
     const Eigen::Vector3i j = idx + o;
     if (!InMap(j)) continue;

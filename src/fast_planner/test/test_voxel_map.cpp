@@ -161,6 +161,41 @@ TEST(VoxelMapTest, InflationIsABallAroundEachObstacleAndIsUndoneWhenItIsFreed) {
   }
 }
 
+TEST(VoxelMapTest, InflationEqualsTheBallsOfRandomObstaclesInsideAndAtTheMapBorder) {
+  // Obstacles whose ball lies in the map take the unchecked path (runs of linear offsets), those near a face
+  // the checked one: both must mark exactly the voxels within the radius of an obstacle voxel.
+  MapConfig c = test::SmallMapConfig(Eigen::Vector3d(1.6, 1.3, 1.2), 0.1, 0.3);
+  VoxelMap map(c);
+  const Eigen::Vector3i n = map.size_voxels();
+  std::mt19937 rng(7);
+  std::bernoulli_distribution occupied(0.01);
+  std::vector<Eigen::Vector3i> obstacles;
+  std::vector<Eigen::Vector3d> pts;
+  for (int z = 0; z < n.z(); ++z) {
+    for (int y = 0; y < n.y(); ++y) {
+      for (int x = 0; x < n.x(); ++x) {
+        if (!occupied(rng)) continue;
+        obstacles.emplace_back(x, y, z);
+        pts.push_back(map.ToPosition(obstacles.back()));
+      }
+    }
+  }
+  ASSERT_GT(obstacles.size(), 10u);
+  ASSERT_EQ(map.SetOccupied(pts), static_cast<int>(pts.size()));
+  const int band = map.inflation_voxels();
+  for (int z = 0; z < n.z(); ++z) {
+    // The ground and ceiling bands are inflated whatever the obstacles.
+    if (z <= map.ground_layer() + band || z >= map.ceiling_layer() - band) continue;
+    for (int y = 0; y < n.y(); ++y) {
+      for (int x = 0; x < n.x(); ++x) {
+        const Eigen::Vector3i v(x, y, z);
+        bool near = false;
+        for (const Eigen::Vector3i& o : obstacles) near |= (o - v).squaredNorm() * 0.01 <= 0.09 + 1e-9;
+        ASSERT_EQ(map.IsInflated(v), near) << v.transpose();
+      }
+    }
+  }
+}
 TEST(VoxelMapTest, ResetForgetsEverything) {
   VoxelMap map(test::SmallMapConfig(Eigen::Vector3d(3.0, 3.0, 3.0)));
   test::AddBox(&map, Eigen::Vector3d(1.0, 1.0, 1.0), Eigen::Vector3d(1.5, 1.5, 1.5));

@@ -1,6 +1,11 @@
 #include "quad_engine/episode.h"
 
+#include <quad_core/episode_key.h>
+#include <quad_sim/episode_request.h>
+
+#include <cmath>
 #include <cstdio>
+#include <exception>
 
 namespace quad_engine {
 
@@ -11,6 +16,36 @@ Configs LoadConfigs(const ConfigPaths& paths) {
   c.tracker = kr_tracker::LoadTrackerConfig(paths.tracker);
   c.vehicle = quad_core::LoadVehicleParams(paths.vehicle);
   return c;
+}
+
+std::string ResetKeyed(const quad_sim::SimConfig& cfg, const EpisodeSpec& spec, quad_sim::Simulator* sim) {
+  quad_sim::EpisodeRequest req;
+  req.seed = spec.seed;
+  req.start_world_m = Eigen::Vector3d(spec.start_world.x(), spec.start_world.y(), kGroundZM);
+  req.q_start_wxyz =
+      Eigen::Vector4d(std::cos(spec.start_yaw_rad / 2), 0.0, 0.0, std::sin(spec.start_yaw_rad / 2));
+  req.goal_world_m = spec.goal_world;
+  req.keyed = true;
+  req.episode_index = static_cast<uint32_t>(spec.index);
+  try {
+    const quad_sim::EpisodeSetup e = quad_sim::ResolveEpisode(cfg, req);
+    sim->Reset(e.world, e.start_world_m, e.start_yaw_rad, e.goal_world_m, quad_core::EpisodeIdOf(spec.index));
+  } catch (const std::exception& e) {
+    return std::string("reset rejected: ") + e.what();
+  }
+  return "";
+}
+
+const std::vector<Eigen::Vector3d>& WorldPoints::Of(const quad_sim::Simulator& sim, bool* changed) {
+  *changed = !world_ || !(*world_ == sim.world());
+  if (*changed) {
+    const auto centres = sim.ComputeVoxelMap().OccupiedCenters();
+    points_.clear();
+    points_.reserve(centres.size());
+    for (const auto& c : centres) points_.push_back(c.cast<double>());
+    world_ = sim.world();
+  }
+  return points_;
 }
 
 EpisodeDirector::EpisodeDirector(const EpisodeSpec& spec, const EpisodeLimits& limits, double t_start_s)

@@ -6,7 +6,6 @@
 #include <quad_core/episode_key.h>
 #include <quad_core/pairing.h>
 #include <quad_core/wire.h>
-#include <quad_sim/episode_request.h>
 
 #include <chrono>
 #include <cmath>
@@ -79,21 +78,10 @@ EpisodeRun ExpertWorker::Run(const EpisodeSpec& spec, const EpisodeLimits& limit
   const uint64_t t0_ns = quad_core::EpisodeStartNs(spec.index);
   const uint32_t episode_id = quad_core::EpisodeIdOf(spec.index);
 
-  // The manager's reset request: the start on the ground below the take-off target, facing the goal's way.
-  quad_sim::EpisodeRequest req;
-  req.seed = spec.seed;
-  req.start_world_m = Eigen::Vector3d(spec.start_world.x(), spec.start_world.y(), kGroundZM);
-  req.q_start_wxyz =
-      Eigen::Vector4d(std::cos(spec.start_yaw_rad / 2), 0.0, 0.0, std::sin(spec.start_yaw_rad / 2));
-  req.goal_world_m = spec.goal_world;
-  req.keyed = true;
-  req.episode_index = static_cast<uint32_t>(spec.index);
-  try {
-    const quad_sim::EpisodeSetup e = quad_sim::ResolveEpisode(cfg_.sim, req);
-    sim_.Reset(e.world, e.start_world_m, e.start_yaw_rad, e.goal_world_m, episode_id);
-  } catch (const std::exception& e) {
+  const std::string rejected = ResetKeyed(cfg_.sim, spec, &sim_);
+  if (!rejected.empty()) {
     run.outcome = "reset_failed";
-    run.reason = std::string("reset rejected: ") + e.what();
+    run.reason = rejected;
     return run;
   }
   if (!z_offset_measured_) {
@@ -106,11 +94,10 @@ EpisodeRun ExpertWorker::Run(const EpisodeSpec& spec, const EpisodeLimits& limit
   const double t0_s = quad_core::StampSeconds(t0_ns);
   tracker_.OnEpisodeStatus(episode_id, t0_s);
   if (cfg_.planner.map.source == fast_planner::MapSource::kGlobal) {
-    const auto centres = sim_.ComputeVoxelMap().OccupiedCenters();
-    std::vector<Eigen::Vector3d> points;
-    points.reserve(centres.size());
-    for (const auto& c : centres) points.push_back(c.cast<double>());
-    expert_.SetGlobalMap(std::move(points));
+    // A new world's points; for the same world the session keeps the ones it has (and the planner its ESDF).
+    bool changed = false;
+    const std::vector<Eigen::Vector3d>& points = world_points_.Of(sim_, &changed);
+    if (changed) expert_.SetGlobalMap(points);
   }
   buffer_->Start(episode_id, sim_.world().seed);
 

@@ -43,13 +43,15 @@ std::vector<int> PolicyVec::AdvanceAll() {
 void PolicyVec::RunTorch(const quad_policy::TorchPolicy& policy, const std::vector<EpisodeSpec>& specs,
                          const EvalLimits& limits, const OnDone& on_done) {
   const quad_policy::PolicyMeta& m = policy.meta();
-  std::vector<long> running(slots_.size(), -1);  // the spec index each slot flies, -1: none
+  std::vector<long> running(slots_.size(), -1);           // the spec index each slot flies, -1: none
+  std::vector<uint8_t> recovered_last(slots_.size(), 0);  // the slot's previous decision ran the recovery
   size_t next = 0;
   auto refill = [&] {
     for (size_t s = 0; s < slots_.size(); ++s) {
       while (running[s] < 0 && next < specs.size()) {
         slots_[s]->Reset(specs[next], limits);
         running[s] = static_cast<long>(next++);
+        recovered_last[s] = 0;
         if (slots_[s]->done()) {  // a refused reset
           on_done(static_cast<size_t>(running[s]), *slots_[s]);
           running[s] = -1;
@@ -88,17 +90,42 @@ void PolicyVec::RunTorch(const quad_policy::TorchPolicy& policy, const std::vect
         odometry.push_back(r.state);
         goals.push_back(r.goal_world);
       }
+      // Refusals come in runs (a vehicle stuck in front of a box is refused again): the turned goals of a
+      // slot whose previous decision ran the recovery join this pass, rows after the decisions' own.
+      std::vector<std::vector<std::pair<Eigen::Vector3d, size_t>>> turned(waiting.size());
+      for (size_t j = 0; j < waiting.size(); ++j) {
+        const size_t s = static_cast<size_t>(waiting[j]);
+        if (!recovered_last[s]) continue;
+        const DecisionRequest& r = slots_[s]->request();
+        for (double yaw : slots_[s]->recovery_yaws_deg()) {
+          const Eigen::Vector3d g = quad_policy::TurnedGoal(r.state.p_world_body, r.goal_world, yaw);
+          turned[j].emplace_back(g, goals.size());
+          depth.insert(depth.end(), r.depth_x.begin(), r.depth_x.end());
+          states.push_back(quad_policy::EncodeState(r.state, g, m));
+          odometry.push_back(r.state);
+          goals.push_back(g);
+        }
+        ++speculated_decisions_;
+      }
       const std::vector<float> y = policy.RunBatch(depth, states, &odometry, &goals);
       ++forward_passes_;
       batched_decisions_ += waiting.size();
       const size_t dim = static_cast<size_t>(m.network_output_dim());
+      auto row = [&](const std::vector<float>& ys, size_t i) {
+        return std::vector<float>(ys.begin() + i * dim, ys.begin() + (i + 1) * dim);
+      };
       for (size_t j = 0; j < waiting.size(); ++j) {
-        PolicyEpisode& e = *slots_[static_cast<size_t>(waiting[j])];
+        const size_t slot = static_cast<size_t>(waiting[j]);
+        PolicyEpisode& e = *slots_[slot];
         const DecisionRequest req = e.request();
-        // The recovery asks for the turned goals one after the other until one is accepted; they are answered
-        // by one batched pass over all of them at the first question (a cache keyed by the goal).
+        // The recovery asks for the turned goals one after the other until one is accepted: they are answered
+        // from this pass's rows, or else by one batched pass over all of them at the first question (a cache
+        // keyed by the goal).
         std::vector<std::pair<Eigen::Vector3d, std::vector<float>>> answers;
+        for (const auto& [g, i] : turned[j]) answers.emplace_back(g, row(y, i));
+        bool asked = false;
         auto ask = [&, req](const Eigen::Vector3d& goal) {
+          asked = true;
           if (answers.empty()) {
             std::vector<Eigen::Vector3d> goals{goal};
             for (double yaw : e.recovery_yaws_deg()) {
@@ -114,17 +141,16 @@ void PolicyVec::RunTorch(const quad_policy::TorchPolicy& policy, const std::vect
             }
             const std::vector<float> ys = policy.RunBatch(d, s, &o, &goals);
             ++recovery_passes_;
-            for (size_t g = 0; g < goals.size(); ++g)
-              answers.emplace_back(goals[g],
-                                   std::vector<float>(ys.begin() + g * dim, ys.begin() + (g + 1) * dim));
+            for (size_t g = 0; g < goals.size(); ++g) answers.emplace_back(goals[g], row(ys, g));
           }
-          for (const auto& [g, y] : answers) {
-            if (g == goal) return y;
+          for (const auto& [g, a] : answers) {
+            if (g == goal) return a;
           }
           ++recovery_passes_;  // a goal the batch did not hold (not one of the configured turns)
           return policy.Run(req.depth_x, quad_policy::EncodeState(req.state, goal, m), req.state, goal);
         };
-        e.Decide(std::vector<float>(y.begin() + j * dim, y.begin() + (j + 1) * dim), ask);
+        e.Decide(row(y, j), ask);
+        recovered_last[slot] = asked ? 1 : 0;
       }
     }
     refill();

@@ -4,7 +4,6 @@
 #include <quad_core/pairing.h>
 #include <quad_core/wire.h>
 #include <quad_policy/input_checks.h>
-#include <quad_sim/episode_request.h>
 
 #include <cmath>
 #include <cstdio>
@@ -84,19 +83,9 @@ void PolicyEpisode::Reset(const EpisodeSpec& spec, const EvalLimits& limits) {
   step_ = 0;
   t0_ns_ = quad_core::EpisodeStartNs(spec.index);
   const uint32_t id = quad_core::EpisodeIdOf(spec.index);
-  quad_sim::EpisodeRequest req;
-  req.seed = spec.seed;
-  req.start_world_m = Eigen::Vector3d(spec.start_world.x(), spec.start_world.y(), kGroundZM);
-  req.q_start_wxyz =
-      Eigen::Vector4d(std::cos(spec.start_yaw_rad / 2), 0.0, 0.0, std::sin(spec.start_yaw_rad / 2));
-  req.goal_world_m = spec.goal_world;
-  req.keyed = true;
-  req.episode_index = static_cast<uint32_t>(spec.index);
-  try {
-    const quad_sim::EpisodeSetup e = quad_sim::ResolveEpisode(cfg_.sim, req);
-    sim_.Reset(e.world, e.start_world_m, e.start_yaw_rad, e.goal_world_m, id);
-  } catch (const std::exception& e) {
-    Finish("reset_failed", std::string("reset rejected: ") + e.what(), 0.0);
+  const std::string rejected = ResetKeyed(cfg_.sim, spec, &sim_);
+  if (!rejected.empty()) {
+    Finish("reset_failed", rejected, 0.0);
     return;
   }
   if (!z_offset_measured_) {
@@ -106,13 +95,14 @@ void PolicyEpisode::Reset(const EpisodeSpec& spec, const EvalLimits& limits) {
   const double t0 = quad_core::StampSeconds(t0_ns_);
   tracker_.OnEpisodeStatus(id, t0);
   if (decider_) decider_->Reset();
-  std::vector<Eigen::Vector3d> global;
+  bool world_changed = false;
+  const std::vector<Eigen::Vector3d>* global = nullptr;
   if ((labeller_ || expert_) && cfg_.planner.map.source == fast_planner::MapSource::kGlobal) {
-    for (const auto& c : sim_.ComputeVoxelMap().OccupiedCenters()) global.push_back(c.cast<double>());
+    global = &world_points_.Of(sim_, &world_changed);
   }
   for (fast_planner::ExpertSession* e : {labeller_.get(), expert_.get()}) {
     if (!e) continue;
-    if (!global.empty()) e->SetGlobalMap(global);
+    if (global && world_changed) e->SetGlobalMap(*global);
     for (const auto& [t_s, out] : e->StartEpisode(t0)) {
       if (e == expert_.get()) Fly(out, t_s);
     }
@@ -192,7 +182,11 @@ void PolicyEpisode::OnFrame() {
   auto frame = std::make_shared<fast_planner::DepthFrame>();
   frame->stamp_s = stamp;
   frame->intrinsics = sim_.camera_intrinsics();
-  frame->image = sim_.RenderDepth();
+  // The policy alone (no expert, no labeller) needs the pixels only for a decision: without depth noise
+  // (whose random stream every rendered frame advances) a frame skipped before one (no goal, rate limited,
+  // ...) is not rendered, and the others are rendered at the same sim state as before.
+  const bool lazy = !expert_ && !labeller_ && cfg_.sim.camera.noise_std_at_1m_m == 0.0;
+  if (!lazy) frame->image = sim_.RenderDepth();
   frame_ = frame;
   request_ = DecisionRequest{};
   request_.stamp_s = stamp;
@@ -232,8 +226,10 @@ void PolicyEpisode::OnFrame() {
   if (!paired) return Skip("no_odometry");
   const quad_core::VehicleState odom = *paired;
   const auto& k = sim_.camera_intrinsics();
+  // The renderer renders the camera's size: a lazy frame is checked with the size it will have.
   std::string problem =
-      quad_policy::DepthSizeProblem(frame->image.width, frame->image.height, k.width, k.height);
+      lazy ? quad_policy::DepthSizeProblem(k.width, k.height, k.width, k.height)
+           : quad_policy::DepthSizeProblem(frame->image.width, frame->image.height, k.width, k.height);
   if (problem.empty()) problem = quad_policy::StateProblem(odom, odom.t_s);
   if (!problem.empty()) return Skip("bad_input");
   if (stamp - odom.t_s > policy_cfg_.max_odom_age_s) return Skip("stale_odometry");
@@ -242,6 +238,7 @@ void PolicyEpisode::OnFrame() {
       static_cast<int64_t>(t_ns - *last_decision_ns_) < std::llround(1e9 / policy_cfg_.replan_rate_hz)) {
     return Skip("rate_limited");
   }
+  if (lazy) frame->image = sim_.RenderDepth();
   inputs_ = quad_policy::DecisionInputs{};
   inputs_.stamp_s = stamp;
   inputs_.depth = frame->image.view();

@@ -122,6 +122,9 @@ class VoxelMap {
   int ceiling_layer_;
   int inflation_voxels_;  // floor(inflation / resolution): the ground/ceiling band width in voxels
   std::vector<Eigen::Vector3i> inflation_offsets_;
+  // The same offsets as runs along x: (linear offset of the run's first voxel, run length), for voxels whose
+  // whole inflation ball lies in the map (no bounds checks; contiguous increments).
+  std::vector<std::pair<int64_t, int>> inflation_runs_;
   float l_hit_, l_miss_, l_min_, l_max_, l_occupied_;
 
   std::vector<float> log_odds_;

@@ -10,11 +10,14 @@
 #include <quad_core/camera.h>
 #include <quad_core/vehicle_params.h>
 #include <quad_sim/sim_config.h>
+#include <quad_sim/simulator.h>
+#include <quad_sim/world.h>
 
 #include <Eigen/Core>
 
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -104,6 +107,25 @@ class EpisodeDirector {
   Phase phase_ = Phase::kTakeoffPending;
   std::string outcome_, reason_;
   double duration_s_ = 0.0;
+};
+
+// The episode manager's keyed reset request for `spec` (the start on the ground below the take-off target,
+// facing the goal's way), resolved and applied to `sim`. Returns "" or why the simulator rejected it.
+std::string ResetKeyed(const quad_sim::SimConfig& cfg, const EpisodeSpec& spec, quad_sim::Simulator* sim);
+
+// The simulator world's occupied voxel centres, what the privileged expert's SetGlobalMap takes (the
+// simulator's /voxel_map as the planner node reads it), computed again only when the world changes. A world
+// depends on the episode's start and goal (the generator keeps them clear), so collection episodes rarely
+// share one; a reset to the same episode (the Gymnasium env, repeated evaluation) reuses the points, and the
+// planner its ESDF.
+class WorldPoints {
+ public:
+  // The points of `sim`'s current world; *changed says whether the world differs from the previous call's.
+  const std::vector<Eigen::Vector3d>& Of(const quad_sim::Simulator& sim, bool* changed);
+
+ private:
+  std::optional<quad_sim::World> world_;
+  std::vector<Eigen::Vector3d> points_;
 };
 
 // One recorded plan, owning what the writer's record views (the depth frame, the status text).

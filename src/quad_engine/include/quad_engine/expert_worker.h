@@ -58,6 +58,7 @@ class ExpertWorker {
   fast_planner::CameraMount mount_;
   double z_offset_m_ = 0.0;
   bool z_offset_measured_ = false;
+  WorldPoints world_points_;   // the privileged expert's map, once per world
   bool lazy_depth_ = false;    // frames rendered only for the records (privileged expert, no depth noise)
   uint64_t next_goal_id_ = 1;  // the tracker node's TrackBspline goal ids
 };

@@ -28,7 +28,8 @@ class PolicyVec {
   std::vector<int> AdvanceAll();
 
   // Flies `specs` with the LibTorch policy: each slot takes the next episode when its episode ends; each
-  // round the waiting slots are answered by one RunBatch (the recovery's turned goals by single passes).
+  // round the waiting slots are answered by one RunBatch. The recovery's turned goals join that batch for the
+  // slots whose previous decision ran the recovery, and are otherwise asked in one pass per refused decision.
   // on_done is called with each finished episode's index in `specs` and its result (and labels) as it ends.
   using OnDone = std::function<void(size_t spec_index, PolicyEpisode& episode)>;
   void RunTorch(const quad_policy::TorchPolicy& policy, const std::vector<EpisodeSpec>& specs,
@@ -38,14 +39,16 @@ class PolicyVec {
   void RunExpert(const std::vector<EpisodeSpec>& specs, const EvalLimits& limits, const OnDone& on_done);
 
   // Statistics of RunTorch: batched forward passes and the decisions they answered; the recovery's passes
-  // (one batch of every turned goal per refused decision that asks).
+  // outside the round's batch (one batch of every turned goal per refused decision that asks); the decisions
+  // whose turned goals were answered in the round's batch.
   uint64_t forward_passes() const { return forward_passes_; }
   uint64_t batched_decisions() const { return batched_decisions_; }
   uint64_t recovery_passes() const { return recovery_passes_; }
+  uint64_t speculated_decisions() const { return speculated_decisions_; }
 
  private:
   std::vector<std::unique_ptr<PolicyEpisode>> slots_;
-  uint64_t forward_passes_ = 0, batched_decisions_ = 0, recovery_passes_ = 0;
+  uint64_t forward_passes_ = 0, batched_decisions_ = 0, recovery_passes_ = 0, speculated_decisions_ = 0;
 };
 
 }  // namespace quad_engine

@@ -145,6 +145,7 @@ class PolicyEpisode {
   uint64_t t0_ns_ = 0, dt_ns_ = 0, step_ = 0;
   double z_offset_m_ = 0.0;
   bool z_offset_measured_ = false;
+  WorldPoints world_points_;  // the privileged labeller's or expert's map, once per world
   Phase phase_ = Phase::kTakeoff;
   int gotos_ = 0;
   double t_takeoff_s_ = 0.0, t_goal_s_ = 0.0;

@@ -325,5 +325,6 @@ PYBIND11_MODULE(quad_engine_py, m) {
           py::arg("n"), "Keep the labels of every n-th frame (the labeller still integrates every frame).")
       .def_property_readonly("forward_passes", &PolicyVec::forward_passes)
       .def_property_readonly("batched_decisions", &PolicyVec::batched_decisions)
-      .def_property_readonly("recovery_passes", &PolicyVec::recovery_passes);
+      .def_property_readonly("recovery_passes", &PolicyVec::recovery_passes)
+      .def_property_readonly("speculated_decisions", &PolicyVec::speculated_decisions);
 }

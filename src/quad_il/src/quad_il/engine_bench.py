@@ -211,24 +211,25 @@ class EngineBench:
         # The engine's evaluation and DAgger rounds set the config's threads the same way.
         native().configure_torch_threads(num_threads)
         log(f"policy: {what}, {num_threads} torch thread(s), {self.policy_timeout_s:g} s sim per episode")
-        rtf, passes, decisions, recovery = self._fly_policy(policy_file, "shield")
+        rtf, passes, decisions, recovery, speculated = self._fly_policy(policy_file, "shield")
         print(
             f"policy batch (shield): {passes} forward passes, {decisions} batched decisions, "
             f"{decisions / max(passes, 1):.2f} decisions per pass (batch of {POLICY_BATCH}); "
-            f"{recovery} recovery passes (each: every turned goal of one refused decision)",
+            f"{speculated} decisions with their turned goals in the round's pass (the previous one was "
+            f"refused), {recovery} recovery passes (each: every turned goal of one refused decision)",
             flush=True,
         )
         bench("engine_policy_rtf_batch8", rtf, "x")
         bench("engine_policy_decisions_per_pass", decisions / max(passes, 1), "decisions")
         # The same episodes at the safety tier (no recovery, final approach or keeping), for comparison: on a
         # refused decision the shield's recovery asks the network again for its turned goals (one pass).
-        rtf_safety, _, _, _ = self._fly_policy(policy_file, "safety")
+        rtf_safety, *_ = self._fly_policy(policy_file, "safety")
         bench("engine_policy_rtf_batch8_safety_tier", rtf_safety, "x")
 
-    def _fly_policy(self, policy_file: Path, tier: str) -> tuple[float, int, int, int]:
+    def _fly_policy(self, policy_file: Path, tier: str) -> tuple[float, int, int, int, int]:
         """Flies the POLICY_BATCH evaluation episodes in one PolicyVec with config/policy.yaml at `tier`;
         returns (sim seconds summed over the episodes / wall seconds of run_torch, forward passes, batched
-        decisions, recovery passes)."""
+        decisions, recovery passes, decisions whose turned goals were in the round's pass)."""
         from quad_il.collection.episodes import StartGoalConfig, plan_eval_episodes
         from quad_il.engine import native
         from quad_il.evaluation.tiers import render_tier_config
@@ -272,7 +273,13 @@ class EngineBench:
             f"{POLICY_SEEDS[0]}-{POLICY_SEEDS[-1]}) in one PolicyVec: {sim_s:.1f} s sim in {wall_s:.1f} s "
             f"wall; outcomes {outcomes}; decision verdicts {counts}"
         )
-        return sim_s / wall_s, int(vec.forward_passes), int(vec.batched_decisions), int(vec.recovery_passes)
+        return (
+            sim_s / wall_s,
+            int(vec.forward_passes),
+            int(vec.batched_decisions),
+            int(vec.recovery_passes),
+            int(vec.speculated_decisions),
+        )
 
     # Ray.
     def part_ray(self) -> None:
