@@ -1,5 +1,6 @@
 // quad_engine_py: the rollout engine bound into Python (quad_il.engine wraps it; docs/engine.md). Episodes
 // run with the GIL released, so several Python threads (or Ray actors, one process each) fly in parallel.
+#include <pybind11/eigen.h>
 #include <pybind11/functional.h>
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
@@ -122,6 +123,19 @@ PYBIND11_MODULE(quad_engine_py, m) {
       },
       py::arg("sim"), py::arg("planner"), py::arg("tracker"), py::arg("vehicle"),
       "Loads config/sim.yaml, planner.yaml, tracker.yaml and vehicle.yaml (errors name the file and key).");
+  m.def(
+      "sim_camera_mount",
+      [](const std::string& sim) {
+        const quad_sim::SimConfig c = quad_sim::LoadSimConfig(sim);
+        Eigen::Matrix4d T = Eigen::Matrix4d::Identity();
+        T.topLeftCorner<3, 3>() = c.camera.q_body_camera.normalized().toRotationMatrix();
+        T.topRightCorner<3, 1>() = c.camera.p_body_camera_m;
+        return T;
+      },
+      py::arg("sim"),
+      "T_body_camera (4 x 4) of a sim config: the depth camera's optical frame (z forward) in base_link, as "
+      "the "
+      "simulator publishes it on /tf_static.");
 
   py::class_<EpisodeRun>(m, "EpisodeRun", "A flown episode: outcome, statistics and its records.")
       .def_property_readonly("index", [](const EpisodeRun& r) { return r.spec.index; })

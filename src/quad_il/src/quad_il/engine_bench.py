@@ -1,7 +1,8 @@
 """`make bench-engine` (scripts/bench/engine.sh; issue 32, "Benchmarks"; docs/engine.md, "Benchmarks"): the
 rollout engine against the ROS path, measured in one run on the same episode keys.
 
-    python -m quad_il.engine_bench [--seeds 1-6] [--episodes 6] [--parts ros,expert,privileged,policy,ray]
+    python -m quad_il.engine_bench [--seeds 1-6] [--episodes 6] [--privileged-episodes 48]
+        [--parts ros,expert,privileged,policy,ray]
 
 Prints `BENCH <name> <value> <unit>` lines on stdout, and beside them the machine's load (1/5/15-minute load
 averages and the number of CPUs, before and after every part) as `load ...` lines; progress on stderr.
@@ -13,10 +14,14 @@ averages and the number of CPUs, before and after every part) as `load ...` line
   last episode's end) is reported as `engine_ros_manager_records_per_s`.
 - expert: `quad_il.engine.collect.collect(workers=1)` in this process, same keys and expert; records / wall
   seconds of the call (configs loaded, the worker built, the dataset written and finalised), and
-  `engine_expert_speedup` = that / `engine_ros_records_per_s`. `engine_parity_identical` is 1 when its
-  records equal the ROS run's (records_digest without the timing fields, as `python -m
-  quad_il.collection.compare` prints it) and episodes.csv is the same, else 0.
-- privileged: the same with config/planner_privileged.yaml (map.source: global).
+  `engine_expert_speedup` = that / `engine_ros_records_per_s`; `engine_expert_records_per_s_2workers` and
+  `engine_expert_speedup_2workers` the same keys on 2 worker threads in the process.
+  `engine_parity_identical` is 1 when the records of both runs equal the ROS run's (records_digest without
+  the timing fields, as `python -m quad_il.collection.compare` prints it) and episodes.csv is the same,
+  else 0.
+- privileged: the same with config/planner_privileged.yaml (map.source: global), over --privileged-episodes
+  episodes (the seeds cycled; an episode takes about half a second, so six would measure mostly the start-up);
+  `engine_privileged_records_per_s_2workers` is the same run with 2 worker threads in the process.
 - policy: 8 evaluation episodes (world seeds 9000-9007, run_eval's start/goal sampling, 20 s sim limit) flown
   together by quad_engine_py.PolicyVec.run_torch with a seeded random policy of config/train.yaml's model
   exported with `forward_net`, config/policy.yaml as it is (the shield tier): every round of decisions is one
@@ -24,7 +29,8 @@ averages and the number of CPUs, before and after every part) as `load ...` line
   seconds of run_torch; the forward passes and decisions per pass are printed too, and the same episodes at
   the safety tier (`engine_policy_rtf_batch8_safety_tier`, no recovery) for comparison. `--policy FILE`
   flies a trained policy instead of the random one.
-- ray: quad_il.engine.ray_backend.bench_records_per_s with 1 and 2 actors, the privileged expert, same keys.
+- ray: quad_il.engine.ray_backend.bench_records_per_s with 1 and 2 actors, the privileged expert, the
+  privileged part's keys.
 """
 
 from __future__ import annotations
@@ -89,9 +95,11 @@ class EngineBench:
         work: Path,
         policy: Path | None = None,
         policy_timeout_s: float = 20.0,
+        privileged_episodes: int = 48,
     ) -> None:
         self.seeds = seeds
         self.episodes = episodes
+        self.privileged_episodes = privileged_episodes
         self.work = work
         self.policy = policy
         self.policy_timeout_s = policy_timeout_s
@@ -140,13 +148,15 @@ class EngineBench:
         bench("engine_ros_manager_records_per_s", records / manager_wall_s, "records/s")
 
     # The engine's experts.
-    def _engine_collect(self, name: str, planner_config: str) -> tuple[Path, float]:
+    def _engine_collect(
+        self, name: str, planner_config: str, episodes: int, workers: int = 1
+    ) -> tuple[Path, float]:
         from quad_il.engine.collect import collect
 
         out = self.work / name
-        log(f"engine collect, 1 worker, {planner_config}: seeds {self.seeds}, {self.episodes} episodes")
+        log(f"engine collect, {workers} worker(s), {planner_config}: seeds {self.seeds}, {episodes} episodes")
         t0 = time.monotonic()
-        r = collect(out, self.seeds, self.episodes, workers=1, planner_config=planner_config, progress=False)
+        r = collect(out, self.seeds, episodes, workers=workers, planner_config=planner_config, progress=False)
         wall_s = time.monotonic() - t0
         if not r.complete:
             raise RuntimeError(f"engine collection into {out} did not complete: {r}")
@@ -160,13 +170,21 @@ class EngineBench:
         bench(name, value / self.ros_records_per_s, "x")
 
     def part_expert(self) -> None:
-        out, rps = self._engine_collect("expert", DEPTH_EXPERT)
+        out, rps = self._engine_collect("expert", DEPTH_EXPERT, self.episodes)
         bench("engine_expert_records_per_s", rps, "records/s")
         self._ratio("engine_expert_speedup", rps)
+        # The same keys on 2 worker threads of the process: the same dataset (written in key order).
+        out2, rps2 = self._engine_collect("expert_2", DEPTH_EXPERT, self.episodes, workers=2)
+        bench("engine_expert_records_per_s_2workers", rps2, "records/s")
+        self._ratio("engine_expert_speedup_2workers", rps2)
+        eng = dataset_records(out)
+        same_workers = records_digest(dataset_records(out2)) == records_digest(eng)
+        if not same_workers:
+            log("parity: the 2-worker engine run's records differ from the 1-worker run's")
         if self.ros_dir is None:
             log("engine_parity_identical: no ROS dataset in this run: not measured")
             return
-        ros, eng = dataset_records(self.ros_dir), dataset_records(out)
+        ros = dataset_records(self.ros_dir)
         same_records = records_digest(ros) == records_digest(eng)
         same_csv = _episodes_csv(self.ros_dir) == _episodes_csv(out)
         log(
@@ -175,12 +193,14 @@ class EngineBench:
         )
         if not same_records:
             log("parity: record differences:\n  " + "\n  ".join(compare_records(ros, eng)))
-        bench("engine_parity_identical", int(same_records and same_csv), "bool")
+        bench("engine_parity_identical", int(same_records and same_csv and same_workers), "bool")
 
     def part_privileged(self) -> None:
-        _, rps = self._engine_collect("privileged", PRIVILEGED_EXPERT)
+        _, rps = self._engine_collect("privileged", PRIVILEGED_EXPERT, self.privileged_episodes)
         bench("engine_privileged_records_per_s", rps, "records/s")
         self._ratio("engine_privileged_speedup", rps)
+        _, rps2 = self._engine_collect("privileged_2", PRIVILEGED_EXPERT, self.privileged_episodes, workers=2)
+        bench("engine_privileged_records_per_s_2workers", rps2, "records/s")
 
     # The batched policy.
     def part_policy(self) -> None:
@@ -292,9 +312,9 @@ class EngineBench:
         ):
             log(
                 f"Ray backend, {actors} actor(s), {PRIVILEGED_EXPERT}: seeds {self.seeds}, "
-                f"{self.episodes} episodes"
+                f"{self.privileged_episodes} episodes"
             )
-            rps[actors] = bench_records_per_s(actors, self.episodes, self.seeds, PRIVILEGED_EXPERT)
+            rps[actors] = bench_records_per_s(actors, self.privileged_episodes, self.seeds, PRIVILEGED_EXPERT)
             bench(name, rps[actors], "records/s")
         bench("ray_collect_speedup_2actors", rps[2] / rps[1], "x")
 
@@ -313,6 +333,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     ap.add_argument("--seeds", default="1-6", help="world seeds of the collection parts (ROS, engine, Ray)")
     ap.add_argument("--episodes", type=int, default=6, help="episodes of the collection parts")
+    ap.add_argument(
+        "--privileged-episodes", type=int, default=48, help="episodes of the privileged and Ray parts"
+    )
     ap.add_argument("--parts", type=_parts, default=list(PARTS), help="comma-separated parts to run")
     ap.add_argument(
         "--policy", type=Path, default=None, help="exported policy.ts of the policy part (default: random)"
@@ -327,9 +350,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.episodes < 1:
         ap.error(f"--episodes {args.episodes}: must be >= 1")
+    if args.privileged_episodes < 1:
+        ap.error(f"--privileged-episodes {args.privileged_episodes}: must be >= 1")
     work = args.workdir or Path(tempfile.mkdtemp(prefix="bench_engine_"))
     work.mkdir(parents=True, exist_ok=True)
-    b = EngineBench(args.seeds, args.episodes, work, args.policy, args.policy_episode_timeout_s)
+    b = EngineBench(
+        args.seeds, args.episodes, work, args.policy, args.policy_episode_timeout_s, args.privileged_episodes
+    )
     bench("engine_bench_episodes", args.episodes, "episodes")
     failed = []
     t_all = time.monotonic()
