@@ -65,3 +65,11 @@ def test_bad_input_is_named(tmp_path, capsys) -> None:
     (tmp_path / "empty").mkdir()
     assert expert_refusals.main(["--data", str(tmp_path / "empty"), "--no-progress"]) == 2
     assert "empty" in capsys.readouterr().err
+
+
+def test_a_bad_config_is_named(dataset, tmp_path, capsys) -> None:
+    bad = tmp_path / "train.yaml"
+    bad.write_text("data:\n  shards:\n    horizon_s: -1.0\n")
+    assert expert_refusals.main(["--data", str(dataset), "--train-config", str(bad), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "horizon_s" in err

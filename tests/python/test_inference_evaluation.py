@@ -305,7 +305,7 @@ def _fake_relaunch_eval(
     monkeypatch.setattr(run_eval, "_launch", lambda *a: (None, {}))
     monkeypatch.setattr(run_eval, "_stop_group", lambda proc: None)
 
-    def runner(args, controller, out, env, todo, tag, no_reset):  # noqa: ANN001, ANN202
+    def runner(args, controller, out, env, todo, tag):  # noqa: ANN001, ANN202
         calls.append(tag)
         if failures[len(calls) - 1]:
             raise run_eval.EvalError(f"the {controller} runner failed (exit 1); see {tag}_runner.log")

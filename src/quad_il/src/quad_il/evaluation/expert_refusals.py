@@ -167,10 +167,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     for k, p in cfgs.items():
         if not p.is_file():
             ap.error(f"--{k.replace('_', '-')} {p}: no such file")
-    safety = load_policy_config(cfgs["policy_config"]).safety
-    shards = load_config([cfgs["train_config"]]).data.shards
-    resample = ResampleConfig(num_ctrl_pts=shards.num_ctrl_pts, horizon_s=shards.horizon_s)
-    T_body_camera = _camera_mount(cfgs["sim_config"])
+    try:
+        safety = load_policy_config(cfgs["policy_config"]).safety
+        shards = load_config([cfgs["train_config"]]).data.shards
+        resample = ResampleConfig(num_ctrl_pts=shards.num_ctrl_pts, horizon_s=shards.horizon_s)
+        T_body_camera = _camera_mount(cfgs["sim_config"])
+    except (ValueError, RuntimeError) as e:  # the loaders' errors name the file and key
+        print(f"expert_refusals: {e}", file=sys.stderr)
+        return 2
     tally = RefusalTally()
     try:
         total = sum(len(open_dataset(d)) for d in datasets)

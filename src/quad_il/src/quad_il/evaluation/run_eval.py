@@ -163,8 +163,9 @@ def _run_runner(
     env: dict[str, str],
     episodes: Path,
     tag: str,
-    no_reset: bool,
 ) -> None:
+    """Runs quad_il.evaluation.runner on the launch at `env`: every episode starts with a keyed reset (issue
+    32), so its stamps, id and flight are those of the engine's episode of the same key."""
     cmd = [
         sys.executable,
         "-m",
@@ -182,8 +183,6 @@ def _run_runner(
         "--controller-consumer",
         CONSUMER[controller],
     ]
-    if no_reset:
-        cmd.append("--no-reset")
     log_path = out / "logs" / f"{controller}_{tag}_runner.log"
     with open(log_path, "w") as log:
         rc = subprocess.run(
@@ -242,7 +241,8 @@ def run_controller(args: argparse.Namespace, controller: str, out: Path, episode
 
     Episode mode `relaunch` (default): one launch per episode whose simulator config holds the episode (seed,
     start, goal), so every episode starts from freshly started nodes. `reset`: one launch, the episodes
-    through the simulator's reset service (kr_tracker re-anchors its reference on each new episode).
+    through the simulator's reset service (kr_tracker re-anchors its reference on each new episode). In both
+    the runner starts each episode with a keyed reset (its index: the engine's stamps and episode id).
     """
     if args.backend == "engine":
         from quad_il.evaluation import engine_backend
@@ -276,7 +276,7 @@ def run_controller(args: argparse.Namespace, controller: str, out: Path, episode
         launch, env = _launch(args, controller, out, sim_cfg, "all")
         snap = _start_snapshots(args, controller, out, env)
         try:
-            _run_runner(args, controller, out, env, todo, "all", no_reset=False)
+            _run_runner(args, controller, out, env, todo, "all")
             _finish_snapshots(snap, controller)
         finally:
             if snap is not None:
@@ -302,7 +302,7 @@ def run_controller(args: argparse.Namespace, controller: str, out: Path, episode
             launch, env = _launch(args, controller, out, sim_cfg, log_tag)
             snap = _start_snapshots(args, controller, out, env) if n == 0 and attempt == 0 else None
             try:
-                _run_runner(args, controller, out, env, todo, log_tag, no_reset=True)
+                _run_runner(args, controller, out, env, todo, log_tag)
                 _finish_snapshots(snap, controller)
                 break
             except EvalError as e:
