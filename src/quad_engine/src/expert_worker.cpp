@@ -97,7 +97,14 @@ EpisodeRun ExpertWorker::Run(const EpisodeSpec& spec, const EpisodeLimits& limit
     // A new world's points; for the same world the session keeps the ones it has (and the planner its ESDF).
     bool changed = false;
     const std::vector<Eigen::Vector3d>& points = world_points_.Of(sim_, &changed);
-    if (changed) expert_.SetGlobalMap(points);
+    if (changed) {
+      try {
+        expert_.SetGlobalMap(points);
+      } catch (...) {
+        world_points_.Forget();
+        throw;
+      }
+    }
   }
   buffer_->Start(episode_id, sim_.world().seed);
 

@@ -102,7 +102,14 @@ void PolicyEpisode::Reset(const EpisodeSpec& spec, const EvalLimits& limits) {
   }
   for (fast_planner::ExpertSession* e : {labeller_.get(), expert_.get()}) {
     if (!e) continue;
-    if (global && world_changed) e->SetGlobalMap(*global);
+    if (global && world_changed) {
+      try {
+        e->SetGlobalMap(*global);
+      } catch (...) {
+        world_points_.Forget();
+        throw;
+      }
+    }
     for (const auto& [t_s, out] : e->StartEpisode(t0)) {
       if (e == expert_.get()) Fly(out, t_s);
     }
@@ -226,9 +233,9 @@ void PolicyEpisode::OnFrame() {
   if (!paired) return Skip("no_odometry");
   const quad_core::VehicleState odom = *paired;
   const auto& k = sim_.camera_intrinsics();
-  // The renderer renders the camera's size: a lazy frame is checked with the size it will have.
+  // A lazy frame will have the camera's size (the renderer renders it): only a rendered one can differ.
   std::string problem =
-      lazy ? quad_policy::DepthSizeProblem(k.width, k.height, k.width, k.height)
+      lazy ? std::string()
            : quad_policy::DepthSizeProblem(frame->image.width, frame->image.height, k.width, k.height);
   if (problem.empty()) problem = quad_policy::StateProblem(odom, odom.t_s);
   if (!problem.empty()) return Skip("bad_input");

@@ -122,6 +122,8 @@ class WorldPoints {
  public:
   // The points of `sim`'s current world; *changed says whether the world differs from the previous call's.
   const std::vector<Eigen::Vector3d>& Of(const quad_sim::Simulator& sim, bool* changed);
+  // The next Of() computes the points again (after the planner failed to take them: it still holds others).
+  void Forget() { world_.reset(); }
 
  private:
   std::optional<quad_sim::World> world_;

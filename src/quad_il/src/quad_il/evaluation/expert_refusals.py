@@ -46,7 +46,7 @@ class ExpertRefusalError(ValueError):
 class RefusalTally:
     records: int = 0
     verdicts: dict[str, int] = field(default_factory=dict)
-    # The first refusal of each kind: (dataset, record index, reason), to look at.
+    # The first refusal of each kind: "<shard file> record <index in the shard>: <reason>", to look at.
     examples: dict[str, str] = field(default_factory=dict)
 
     @property
@@ -77,7 +77,7 @@ def judge_dataset(
     if not (h.camera_fx_px > 0 and h.camera_fy_px > 0):
         raise ExpertRefusalError(f"{path}: the dataset's header has no camera intrinsics (fx, fy = 0)")
     lut = depth_lut("float32")
-    for _shard, records, indices in ds.valid_record_arrays():
+    for shard, records, indices in ds.valid_record_arrays():
         for start in range(0, len(records), 256):
             if max_records and tally.records >= max_records:
                 return
@@ -111,7 +111,8 @@ def judge_dataset(
                 tally.records += 1
                 tally.verdicts[result.label] = tally.verdicts.get(result.label, 0) + 1
                 if not result.accepted and result.label not in tally.examples:
-                    tally.examples[result.label] = f"{path} record {int(indices[start + j])}: {result.reason}"
+                    where = f"{path / shard.name} record {int(indices[start + j])}"
+                    tally.examples[result.label] = f"{where}: {result.reason}"
             if progress is not None:
                 progress.update(len(chunk))
 
