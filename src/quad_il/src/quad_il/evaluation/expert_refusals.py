@@ -145,7 +145,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--sim-config", default="config/sim.yaml", help="the camera mount")
     ap.add_argument("--max-records", type=int, default=0, help="judge at most this many records (0: all)")
     ap.add_argument("--out", default="", help="write the tally as JSON here")
-    ap.add_argument("--no-progress", action="store_true")
+    ap.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     return ap
 
 
