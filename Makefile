@@ -2,7 +2,7 @@
 #   make demo    the main job end to end on the default configuration
 #   make test    the whole test suite (lint, gtest, rostest, pytest) with a summary line
 #   make build   idempotent set-up (apt, .venv, pip) + catkin build
-#   make eval POLICY=runs/x/policy.ts [SET=dev|dev_dense|test|test_dense | SEEDS=9000-9019 EPISODES=20 DENSITY=]
+#   make eval [POLICY=runs/x/policy.ts (default: the shipped models/quad_il_policy/policy.ts)] [SET=dev|dev_dense|test|test_dense | SEEDS=9000-9019 EPISODES=20 DENSITY=]
 #             [TIER=bare|safety|shield] [CONTROLLERS=expert,cpp] [EVAL_OUT=results/eval]
 #             [POLICY_CONFIG=config/policy.yaml] [FORCE_NEW=1] [BACKEND=engine|ros]
 #                closed-loop evaluation of the expert and the policy on held-out worlds (docs/inference.md), in
@@ -38,8 +38,9 @@ CONTROLLERS ?=
 EVAL_OUT ?= results/eval
 POLICY_CONFIG ?=
 FORCE_NEW ?=
+POLICY ?= models/quad_il_policy/policy.ts
 eval: build
-	@test -n "$(POLICY)" || test "$(CONTROLLERS)" = expert || { echo "make eval: POLICY=<exported policy.ts> is required (a training run's policy.ts) unless CONTROLLERS=expert" >&2; exit 2; }
+	@test "$(CONTROLLERS)" = expert || test -f "$(POLICY)" || { echo "make eval: POLICY=$(POLICY): no such file (an exported policy.ts; the shipped one is models/quad_il_policy/policy.ts)" >&2; exit 2; }
 	@source scripts/env.sh && python -m quad_il.evaluation.run_eval --policy "$(POLICY)" --tier "$(TIER)" \
 	  --backend "$(BACKEND)" $(if $(CONTROLLERS),--controllers "$(CONTROLLERS)",) --out "$(EVAL_OUT)" \
 	  $(if $(SET),--set $(SET),) $(if $(SEEDS),--seeds "$(SEEDS)",) \

@@ -95,6 +95,11 @@ RULES: list[tuple[str, str, Callable[[Path], None]]] = [
     ("tests/rostest/*.yaml", "c++ sim", cpp_loader("sim")),
     ("config/tracker.yaml", "c++ tracker", cpp_loader("tracker")),
     ("config/train.yaml", "train", lambda p: load_train_config([p])),
+    (
+        "models/*/train_config.yaml",
+        "train (a shipped policy's resolved config)",
+        lambda p: load_train_config([p]),
+    ),
     ("config/experiments/*.yaml", "train overlay", load_train_overlay),
     ("config/vehicle.yaml", "c++ vehicle", cpp_loader("vehicle")),
     ("config/worlds/*.yaml", "c++ world", cpp_loader("world")),

@@ -44,7 +44,9 @@ class Comparison:
     mcnemar_p: float
 
 
-def _load(run: Path, controller: str) -> tuple[list, dict[int, EpisodeResult]]:
+def load_run(run: Path, controller: str) -> tuple[list, dict[int, EpisodeResult]]:
+    """The episodes and the controller's results of one complete run_eval output directory; CompareError
+    naming the file when one is missing or a result is."""
     episodes_file = run / "episodes.json"
     if not episodes_file.is_file():
         raise CompareError(f"{run}: no episodes.json (not a run_eval output directory)")
@@ -64,8 +66,8 @@ def _load(run: Path, controller: str) -> tuple[list, dict[int, EpisodeResult]]:
 
 def compare(run_a: str | Path, run_b: str | Path, controller: str = "cpp") -> Comparison:
     a_dir, b_dir = Path(run_a), Path(run_b)
-    specs_a, a = _load(a_dir, controller)
-    specs_b, b = _load(b_dir, controller)
+    specs_a, a = load_run(a_dir, controller)
+    specs_b, b = load_run(b_dir, controller)
     if specs_a != specs_b:
         raise CompareError(
             f"{a_dir} and {b_dir} hold different episodes (episodes.json differ): only evaluations of the "
