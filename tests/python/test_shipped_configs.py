@@ -20,6 +20,7 @@ from pathlib import Path
 import pytest
 
 from quad_il.collection.episodes import load_collect_config
+from quad_il.evaluation.learning_curve import parse_spec as load_learning_curve_spec
 from quad_il.evaluation.sets import load_eval_sets
 from quad_il.imitation.collector_config import load_collector_node_config
 from quad_il.inference.config import load_policy_config
@@ -102,6 +103,11 @@ RULES: list[tuple[str, str, Callable[[Path], None]]] = [
     ),
     ("config/experiments/*.yaml", "train overlay", load_train_overlay),
     ("config/vehicle.yaml", "c++ vehicle", cpp_loader("vehicle")),
+    (
+        "docs/figures/*.yaml",
+        "learning curve (the evaluations are not in the repository)",
+        load_learning_curve_spec,
+    ),
     ("config/worlds/*.yaml", "c++ world", cpp_loader("world")),
 ]
 

@@ -76,11 +76,22 @@ def _resolve(spec_dir: Path, text: str) -> Path:
     p = Path(text)
     if p.is_absolute():
         return p
-    return spec_dir / p if (spec_dir / p).exists() else Path.cwd() / p
+    return spec_dir / p if (spec_dir / p).exists() else p  # else: relative to the working directory
 
 
-def load_points(spec_path: str | Path, controller: str = "cpp") -> tuple[str, list[CurvePoint]]:
-    """The SPEC's title and its points with their outcome counts."""
+@dataclass(frozen=True)
+class PointSpec:
+    """One point of a SPEC, checked, before its evaluation is read."""
+
+    name: str
+    samples: int
+    round: int
+    series: str
+    eval_dir: Path
+
+
+def parse_spec(spec_path: str | Path) -> tuple[str, list[PointSpec]]:
+    """The SPEC's title and points, checked key by key (the evaluation directories are not read)."""
     spec_path = Path(spec_path)
     try:
         tree = yaml.safe_load(spec_path.read_text())
@@ -93,8 +104,7 @@ def load_points(spec_path: str | Path, controller: str = "cpp") -> tuple[str, li
     unknown = set(tree) - {"title", "points"}
     if unknown:
         raise LearningCurveError(f"{spec_path}: unknown top-level key(s) {sorted(unknown)} (title, points)")
-    points: list[CurvePoint] = []
-    reference: tuple[Path, list] | None = None
+    points: list[PointSpec] = []
     for i, p in enumerate(tree["points"]):
         where = f"{spec_path}: points[{i}]"
         if not isinstance(p, dict):
@@ -117,35 +127,37 @@ def load_points(spec_path: str | Path, controller: str = "cpp") -> tuple[str, li
             raise LearningCurveError(f"{where}: 'series' must be a non-empty string")
         if not isinstance(p.get("eval"), str):
             raise LearningCurveError(f"{where}: 'eval' must name a run_eval output directory")
-        run = _resolve(spec_path.parent, p["eval"])
+        points.append(PointSpec(name, samples, rnd, series, _resolve(spec_path.parent, p["eval"])))
+    title = tree.get("title", "")
+    return (title if isinstance(title, str) else str(title)), points
+
+
+def load_points(spec_path: str | Path, controller: str = "cpp") -> tuple[str, list[CurvePoint]]:
+    """The SPEC's title and its points with their outcome counts."""
+    title, specs = parse_spec(spec_path)
+    points: list[CurvePoint] = []
+    reference: tuple[Path, list] | None = None
+    for p in specs:
+        where = f"{spec_path}: point {p.name!r}"
         try:
-            specs, results = load_run(run, controller)
+            episodes, results = load_run(p.eval_dir, controller)
         except CompareError as e:
             raise LearningCurveError(f"{where}: {e}") from None
         if reference is None:
-            reference = (run, specs)
-        elif specs != reference[1]:
+            reference = (p.eval_dir, episodes)
+        elif episodes != reference[1]:
             raise LearningCurveError(
-                f"{where}: {run} holds other episodes than {reference[0]} (episodes.json differ): every "
-                "point must be evaluated on the same episodes"
+                f"{where}: {p.eval_dir} holds other episodes than {reference[0]} (episodes.json differ): "
+                "every point must be evaluated on the same episodes"
             )
         outcomes = [r.outcome for r in results.values()]
         if not outcomes:
-            raise LearningCurveError(f"{where}: {run} holds no episodes")
+            raise LearningCurveError(f"{where}: {p.eval_dir} holds no episodes")
+        n_ok, n_coll = outcomes.count("goal_reached"), outcomes.count("collision")
         points.append(
-            CurvePoint(
-                name,
-                samples,
-                rnd,
-                series,
-                run,
-                len(outcomes),
-                outcomes.count("goal_reached"),
-                outcomes.count("collision"),
-            )
+            CurvePoint(p.name, p.samples, p.round, p.series, p.eval_dir, len(outcomes), n_ok, n_coll)
         )
-    title = tree.get("title", "")
-    return (title if isinstance(title, str) else str(title)), points
+    return title, points
 
 
 def table(points: list[CurvePoint]) -> str:
