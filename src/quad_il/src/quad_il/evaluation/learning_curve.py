@@ -45,26 +45,6 @@ class LearningCurveError(ValueError):
     """A SPEC that cannot be drawn; the message names the point and the key."""
 
 
-@dataclass(frozen=True)
-class CurvePoint:
-    name: str
-    samples: int
-    round: int
-    series: str
-    eval_dir: Path
-    episodes: int
-    successes: int
-    collisions: int
-
-    @property
-    def rate(self) -> float:
-        return self.successes / self.episodes
-
-    @property
-    def interval(self) -> tuple[float, float]:
-        return wilson_interval(self.successes, self.episodes)
-
-
 def _int_key(p: dict, key: str, where: str, minimum: int) -> int:
     v = p.get(key)
     if isinstance(v, bool) or not isinstance(v, int) or v < minimum:
@@ -88,6 +68,23 @@ class PointSpec:
     round: int
     series: str
     eval_dir: Path
+
+
+@dataclass(frozen=True)
+class CurvePoint(PointSpec):
+    """A point of the SPEC with its evaluation's outcome counts."""
+
+    episodes: int
+    successes: int
+    collisions: int
+
+    @property
+    def rate(self) -> float:
+        return self.successes / self.episodes
+
+    @property
+    def interval(self) -> tuple[float, float]:
+        return wilson_interval(self.successes, self.episodes)
 
 
 def parse_spec(spec_path: str | Path) -> tuple[str, list[PointSpec]]:
@@ -154,9 +151,7 @@ def load_points(spec_path: str | Path, controller: str = "cpp") -> tuple[str, li
         if not outcomes:
             raise LearningCurveError(f"{where}: {p.eval_dir} holds no episodes")
         n_ok, n_coll = outcomes.count("goal_reached"), outcomes.count("collision")
-        points.append(
-            CurvePoint(p.name, p.samples, p.round, p.series, p.eval_dir, len(outcomes), n_ok, n_coll)
-        )
+        points.append(CurvePoint(**vars(p), episodes=len(outcomes), successes=n_ok, collisions=n_coll))
     return title, points
 
 

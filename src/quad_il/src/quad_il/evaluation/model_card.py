@@ -114,8 +114,7 @@ def dataset_hash(path: Path) -> str:
     return h.hexdigest()
 
 
-def _dataset_lines(run: Path, hash_data: bool) -> list[str]:
-    manifest = _read_json(run / "dataset_manifest.json")
+def _dataset_lines(manifest: dict, hash_data: bool) -> list[str]:
     lines = []
     for src in manifest.get("per_source", []):
         p = Path(src["path"])
@@ -163,7 +162,7 @@ def _run_section(run: Path, hash_data: bool) -> list[str]:
         f"{manifest.get('num_samples', 0):,} samples, horizon {manifest.get('horizon_s')} s, "
         f"{manifest.get('num_ctrl_pts')} control points",
         "- data:",
-        *_dataset_lines(run, hash_data),
+        *_dataset_lines(manifest, hash_data),
         "",
     ]
 
