@@ -5,14 +5,15 @@ an ordinary demonstration dataset (docs/data_format.md), which `python training_
 trains on unchanged.
 
     python -m quad_il.engine.dagger --policy runs/x/policy.ts --out data/dagger_r1 --seeds 100-299
-        --episodes 200 [--slots 8] [--policy-config config/policy_plain.yaml] [--resume]
+        --episodes 200 [--workers 2] [--slots 8] [--policy-config config/policy_plain.yaml] [--resume]
 
 Episode i is keyed (world seed seeds[i % len(seeds)], index i) with the collection's start and goal
-(quad_il.collection.episodes.plan_episode), so a round is the same dataset whatever --slots is; episodes are
-written in key order. OUT holds the dataset, episodes.csv (the learner's outcome of each episode; samples =
-its labels) and dagger_summary.yaml. --slots episodes fly together and every frame at which several decide is
-answered by one batched forward pass. `--policy none` (the IL manager's round 0 without an initial policy)
-collects the expert's own demonstrations instead (quad_il.engine.collect), as BC.
+(quad_il.collection.episodes.plan_episode), so a round is the same dataset whatever --slots and --workers
+are; episodes are written in key order. OUT holds the dataset, episodes.csv (the learner's outcome of each
+episode; samples = its labels) and dagger_summary.yaml. --workers threads (quad_il.engine.policy_fleet) each
+fly --slots episodes together, every frame at which several decide answered by one batched forward pass.
+`--policy none` (the IL manager's round 0 without an initial policy) collects the expert's own
+demonstrations instead (quad_il.engine.collect), as BC.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from tqdm import tqdm
 from quad_il.collection import prepare
 from quad_il.collection.episodes import EpisodeLog, EpisodeOutcome, manager_config, plan_episode
 from quad_il.engine import native
+from quad_il.engine.policy_fleet import fly_policy
 from quad_il.tools import config_overlay
 from quad_il.tools.cli import HelpFormatter
 from quad_il.tools.repo import repo_root
@@ -46,6 +48,7 @@ def run_round(
     episodes: int,
     *,
     slots: int = 8,
+    workers: int = 2,
     label_stride: int = 3,
     resume: bool = False,
     policy_config: str = "config/policy_plain.yaml",
@@ -63,6 +66,8 @@ def run_round(
     e = native()
     if slots < 1:
         raise ValueError(f"slots {slots}: must be >= 1")
+    if workers < 1:
+        raise ValueError(f"workers {workers}: must be >= 1")
     if policy == "none":  # round 0 without a learner (the manager's {policy}): the expert flies, as BC
         from quad_il.engine.collect import collect
 
@@ -70,7 +75,7 @@ def run_round(
             output_dir,
             seeds,
             episodes,
-            workers=min(slots, 2),
+            workers=workers,
             resume=resume,
             episode_timeout_s=episode_timeout_s,
             collect_config=collect_config,
@@ -113,11 +118,8 @@ def run_round(
         str(_abs(tracker_config)),
         str(_abs(vehicle_config)),
     )
-    torch_policy = e.TorchPolicy(str(_abs(policy)))
     policy_cfg = e.load_policy_config(str(_abs(policy_config)))
     e.configure_torch_threads(policy_cfg.num_threads)  # the nodes' setting (config/policy.yaml num_threads)
-    vec = e.PolicyVec(configs, policy_cfg, torch_policy.meta, max(1, min(slots, len(specs) or 1)), True)
-    vec.set_label_stride(label_stride)
     run_info = [
         ("launch", "quad_il.engine.dagger"),
         ("policy", str(_abs(policy))),
@@ -132,7 +134,7 @@ def run_round(
     for o in previous:
         outcomes[o.outcome] = outcomes.get(o.outcome, 0) + 1
     samples = sum(o.samples for o in previous)
-    pending: dict[int, tuple[dict, object]] = {}
+    pending: dict[int, tuple[dict, object]] = {}  # finished ahead of the key order (other workers)
     state = {"next": 0, "samples": samples}
     bar = tqdm(total=cfg.episodes, initial=first, unit="ep", desc="dagger", disable=not progress)
     wall0 = time.monotonic()
@@ -161,8 +163,20 @@ def run_round(
 
     tuples = [(s.index, s.seed, s.start_world, s.start_yaw_rad, s.goal_world) for s in specs]
     try:
-        if tuples:
-            vec.run_torch(torch_policy, tuples, cfg.takeoff_timeout_s, cfg.episode_timeout_s, on_done)
+        stats = fly_policy(
+            e,
+            configs,
+            str(_abs(policy)),
+            policy_cfg,
+            tuples,
+            on_done,
+            workers=workers,
+            slots=slots,
+            takeoff_timeout_s=cfg.takeoff_timeout_s,
+            episode_timeout_s=cfg.episode_timeout_s,
+            labeller=True,
+            label_stride=label_stride,
+        )
     finally:
         bar.close()
         log.close()
@@ -174,8 +188,9 @@ def run_round(
         "episodes": first + state["next"],
         "labels": state["samples"],
         "learner_outcomes": outcomes,
-        "forward_passes": vec.forward_passes,
-        "decisions_per_forward_pass": round(vec.batched_decisions / max(vec.forward_passes, 1), 3),
+        "forward_passes": stats.forward_passes,
+        "decisions_per_forward_pass": round(stats.decisions_per_forward_pass, 3),
+        "workers": workers,
         "wall_s": round(wall, 3),
     }
     (out / "dagger_summary.yaml").write_text(yaml.safe_dump(summary, sort_keys=False))
@@ -194,7 +209,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--out", required=True, help="the round's dataset directory")
     ap.add_argument("--seeds", default="100-299", help="world seeds, cycled (ranges allowed)")
     ap.add_argument("--episodes", type=int, default=200, help="episodes of the round")
-    ap.add_argument("--slots", type=int, default=8, help="episodes flown together (one batched forward pass)")
+    ap.add_argument(
+        "--slots", type=int, default=8, help="episodes a worker flies together (one batched forward pass)"
+    )
+    ap.add_argument("--workers", type=int, default=2, help="engine workers (threads; one core each)")
     ap.add_argument(
         "--label-stride", type=int, default=3, help="keep the expert's labels of every n-th frame (30 Hz / n)"
     )
@@ -213,6 +231,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             a.seeds,
             a.episodes,
             slots=a.slots,
+            workers=a.workers,
             label_stride=a.label_stride,
             resume=a.resume,
             policy_config=a.policy_config,

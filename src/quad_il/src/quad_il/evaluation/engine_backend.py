@@ -6,9 +6,9 @@ OUT/<controller>.jsonl with the ROS runner's fields and measures (quad_il.evalua
 on the odometry from the goal to the end and the world's boxes), so the report reads both backends alike.
 
 Controllers: `expert` (the planner in flight mode) and `cpp` (the exported policy through LibTorch and the
-one C++ decider, at the run's tier; every slot deciding at the same time answered by one batched forward
-pass). The Python node's own forward pass (`py`) runs on the ROS backend only. Lockstep timeouts do not exist
-here: every result has lockstep_timeouts 0.
+one C++ decider, at the run's tier, flown by `workers` threads of quad_il.engine.policy_fleet; every slot
+deciding at the same time answered by one batched forward pass). The Python node's own forward pass (`py`)
+runs on the ROS backend only. Lockstep timeouts do not exist here: every result has lockstep_timeouts 0.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ import numpy as np
 import yaml
 
 from quad_il.engine import native
+from quad_il.engine.policy_fleet import fly_policy
 from quad_il.evaluation.episodes import EpisodeResult, append_result, read_episodes, read_results
 from quad_il.evaluation.metrics import Box, summarise_flight
 from quad_il.tools import config_overlay
@@ -67,6 +68,7 @@ def run_controller(
     policy: str | None = None,
     policy_config: Path | None = None,
     slots: int = 8,
+    workers: int = 2,
 ) -> str:
     """Flies the episodes not yet in OUT/<controller>.jsonl on the engine; '' or why the controller is
     skipped."""
@@ -109,11 +111,18 @@ def run_controller(
         vec = e.PolicyVec.experts(configs, 1)
         vec.run_expert(tuples, TAKEOFF_TIMEOUT_S, episode_timeout_s, on_done)
     else:
-        torch_policy = e.TorchPolicy(str(Path(policy).resolve()))
         policy_cfg = e.load_policy_config(str(policy_config))
-        e.configure_torch_threads(
-            policy_cfg.num_threads
-        )  # the nodes' setting (config/policy.yaml num_threads)
-        vec = e.PolicyVec(configs, policy_cfg, torch_policy.meta, max(1, min(slots, len(specs))), False)
-        vec.run_torch(torch_policy, tuples, TAKEOFF_TIMEOUT_S, episode_timeout_s, on_done)
+        e.configure_torch_threads(policy_cfg.num_threads)  # the nodes' setting (config/policy.yaml)
+        fly_policy(
+            e,
+            configs,
+            str(Path(policy).resolve()),
+            policy_cfg,
+            tuples,
+            on_done,
+            workers=workers,
+            slots=slots,
+            takeoff_timeout_s=TAKEOFF_TIMEOUT_S,
+            episode_timeout_s=episode_timeout_s,
+        )
     return ""

@@ -7,7 +7,7 @@ flown by each controller (expert, Python policy, C++ policy); then the Markdown 
         [--controllers expert,py,cpp] [--out results/eval] [--sim-config config/sim.yaml]
         [--policy-config config/policy.yaml] [--episode-timeout-s 60]
         [--min-distance-m 20 --max-distance-m 30] [--snapshots 8,15] [--episode-mode relaunch|reset]
-        [--setup-retries 1] [--report-only] [--backend engine|ros]
+        [--setup-retries 1] [--report-only] [--backend engine|ros] [--workers 2]
 
 Episodes come from an evaluation set of config/eval_sets.yaml (--set; development sets for choices, test
 sets only to report) or from --seeds/--episodes/--density. The policy nodes fly one tier (--tier;
@@ -18,7 +18,8 @@ simulator config and commit: resuming into OUT with any of them different is an 
 
 --backend engine (the default) flies every episode in-process on the rollout engine
 (quad_il.evaluation.engine_backend: the expert, and the exported policy through LibTorch and the C++ decider,
-episodes deciding together in one batched forward pass); --backend ros flies them through ROS as follows.
+episodes deciding together in one batched forward pass, the policy's episodes dealt to --workers threads);
+--backend ros flies them through ROS as follows.
 Per controller on ROS: a private ROS master with `roslaunch quad_il infer.launch controller:=<c>` (simulator
 in lockstep with the controller and the runner as depth consumers, tracker, controller), then `python -m
 quad_il.evaluation.runner` flies every episode through the simulator's reset service; results are appended
@@ -255,6 +256,7 @@ def run_controller(args: argparse.Namespace, controller: str, out: Path, episode
             args.episode_timeout_s,
             policy=args.policy,
             policy_config=out / TIER_CONFIG,
+            workers=args.workers,
         )
     why = node_available(controller)
     if why:
@@ -393,7 +395,15 @@ def main(argv: list[str] | None = None) -> int:
         default="engine",
         help="engine: in-process (quad_il.evaluation.engine_backend); ros: the nodes through roslaunch",
     )
+    ap.add_argument(
+        "--workers",
+        type=int,
+        default=2,
+        help="engine backend: threads flying the policy's episodes (results do not depend on it)",
+    )
     args = ap.parse_args(argv)
+    if args.workers < 1:
+        ap.error(f"--workers {args.workers}: must be >= 1")
     from quad_il.evaluation.report import write_report
 
     # SIGTERM unwinds like Ctrl-C: the finally blocks stop the launches we started (in their own sessions).
