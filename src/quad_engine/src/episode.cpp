@@ -36,16 +36,20 @@ std::string ResetKeyed(const quad_sim::SimConfig& cfg, const EpisodeSpec& spec, 
   return "";
 }
 
-const std::vector<Eigen::Vector3d>& WorldPoints::Of(const quad_sim::Simulator& sim, bool* changed) {
-  *changed = !world_ || !(*world_ == sim.world());
-  if (*changed) {
-    const auto centres = sim.ComputeVoxelMap().OccupiedCenters();
-    points_.clear();
-    points_.reserve(centres.size());
-    for (const auto& c : centres) points_.push_back(c.cast<double>());
-    world_ = sim.world();
+void WorldPoints::Give(const quad_sim::Simulator& sim,
+                       std::initializer_list<fast_planner::ExpertSession*> sessions) {
+  bool any = false;
+  for (const fast_planner::ExpertSession* s : sessions) any = any || s != nullptr;
+  if (!any || (world_ && *world_ == sim.world())) return;
+  world_.reset();  // until every session holds the new world's points
+  const auto centres = sim.ComputeVoxelMap().OccupiedCenters();
+  points_.clear();
+  points_.reserve(centres.size());
+  for (const auto& c : centres) points_.push_back(c.cast<double>());
+  for (fast_planner::ExpertSession* s : sessions) {
+    if (s) s->SetGlobalMap(points_);
   }
-  return points_;
+  world_ = sim.world();
 }
 
 EpisodeDirector::EpisodeDirector(const EpisodeSpec& spec, const EpisodeLimits& limits, double t_start_s)

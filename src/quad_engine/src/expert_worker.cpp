@@ -93,19 +93,7 @@ EpisodeRun ExpertWorker::Run(const EpisodeSpec& spec, const EpisodeLimits& limit
   // first).
   const double t0_s = quad_core::StampSeconds(t0_ns);
   tracker_.OnEpisodeStatus(episode_id, t0_s);
-  if (cfg_.planner.map.source == fast_planner::MapSource::kGlobal) {
-    // A new world's points; for the same world the session keeps the ones it has (and the planner its ESDF).
-    bool changed = false;
-    const std::vector<Eigen::Vector3d>& points = world_points_.Of(sim_, &changed);
-    if (changed) {
-      try {
-        expert_.SetGlobalMap(points);
-      } catch (...) {
-        world_points_.Forget();
-        throw;
-      }
-    }
-  }
+  if (cfg_.planner.map.source == fast_planner::MapSource::kGlobal) world_points_.Give(sim_, {&expert_});
   buffer_->Start(episode_id, sim_.world().seed);
 
   auto send = [&](const fast_planner::ReplannerOutput& out, double clock_s) {

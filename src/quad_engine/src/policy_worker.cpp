@@ -95,21 +95,11 @@ void PolicyEpisode::Reset(const EpisodeSpec& spec, const EvalLimits& limits) {
   const double t0 = quad_core::StampSeconds(t0_ns_);
   tracker_.OnEpisodeStatus(id, t0);
   if (decider_) decider_->Reset();
-  bool world_changed = false;
-  const std::vector<Eigen::Vector3d>* global = nullptr;
-  if ((labeller_ || expert_) && cfg_.planner.map.source == fast_planner::MapSource::kGlobal) {
-    global = &world_points_.Of(sim_, &world_changed);
+  if (cfg_.planner.map.source == fast_planner::MapSource::kGlobal) {
+    world_points_.Give(sim_, {labeller_.get(), expert_.get()});
   }
   for (fast_planner::ExpertSession* e : {labeller_.get(), expert_.get()}) {
     if (!e) continue;
-    if (global && world_changed) {
-      try {
-        e->SetGlobalMap(*global);
-      } catch (...) {
-        world_points_.Forget();
-        throw;
-      }
-    }
     for (const auto& [t_s, out] : e->StartEpisode(t0)) {
       if (e == expert_.get()) Fly(out, t_s);
     }

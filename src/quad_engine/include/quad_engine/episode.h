@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cpp_data_collector/plan_record.h>
+#include <fast_planner/expert_session.h>
 #include <fast_planner/planner_config.h>
 #include <fast_planner/voxel_map.h>
 #include <kr_tracker/config.h>
@@ -16,6 +17,7 @@
 #include <Eigen/Core>
 
 #include <cstdint>
+#include <initializer_list>
 #include <memory>
 #include <optional>
 #include <string>
@@ -114,16 +116,16 @@ class EpisodeDirector {
 std::string ResetKeyed(const quad_sim::SimConfig& cfg, const EpisodeSpec& spec, quad_sim::Simulator* sim);
 
 // The simulator world's occupied voxel centres, what the privileged expert's SetGlobalMap takes (the
-// simulator's /voxel_map as the planner node reads it), computed again only when the world changes. A world
-// depends on the episode's start and goal (the generator keeps them clear), so collection episodes rarely
-// share one; a reset to the same episode (the Gymnasium env, repeated evaluation) reuses the points, and the
-// planner its ESDF.
+// simulator's /voxel_map as the planner node reads it), computed and handed over again only when the world
+// changes. A world depends on the episode's start and goal (the generator keeps them clear), so collection
+// episodes rarely share one; a reset to the same episode (the Gymnasium env, repeated evaluation) reuses the
+// points, and the planner its ESDF.
 class WorldPoints {
  public:
-  // The points of `sim`'s current world; *changed says whether the world differs from the previous call's.
-  const std::vector<Eigen::Vector3d>& Of(const quad_sim::Simulator& sim, bool* changed);
-  // The next Of() computes the points again (after the planner failed to take them: it still holds others).
-  void Forget() { world_.reset(); }
+  // Hands `sim`'s current world to the sessions (null entries skipped) if it differs from the previous
+  // call's. If a session throws, the exception propagates and the next call hands the world over again (the
+  // session still holds the previous world's points).
+  void Give(const quad_sim::Simulator& sim, std::initializer_list<fast_planner::ExpertSession*> sessions);
 
  private:
   std::optional<quad_sim::World> world_;
