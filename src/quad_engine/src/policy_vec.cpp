@@ -3,6 +3,46 @@
 #include <stdexcept>
 
 namespace quad_engine {
+namespace {
+
+// The rows of one batched forward pass.
+struct Batch {
+  std::vector<float> depth;
+  std::vector<quad_policy::StateVector> states;
+  std::vector<quad_core::VehicleState> odometry;
+  std::vector<Eigen::Vector3d> goals;
+
+  void Clear() {
+    depth.clear();
+    states.clear();
+    odometry.clear();
+    goals.clear();
+  }
+  // The request's own decision.
+  void Add(const DecisionRequest& r) {
+    depth.insert(depth.end(), r.depth_x.begin(), r.depth_x.end());
+    states.push_back(r.state_x);
+    odometry.push_back(r.state);
+    goals.push_back(r.goal_world);
+  }
+  // The request's frame with another goal (a recovery turn).
+  void Add(const DecisionRequest& r, const Eigen::Vector3d& goal, const quad_policy::PolicyMeta& m) {
+    depth.insert(depth.end(), r.depth_x.begin(), r.depth_x.end());
+    states.push_back(quad_policy::EncodeState(r.state, goal, m));
+    odometry.push_back(r.state);
+    goals.push_back(goal);
+  }
+};
+
+// The goals the recovery of episode `e` turns to from the request's state, in its order.
+std::vector<Eigen::Vector3d> TurnedGoals(const PolicyEpisode& e, const DecisionRequest& r) {
+  std::vector<Eigen::Vector3d> goals;
+  for (double yaw : e.recovery_yaws_deg())
+    goals.push_back(quad_policy::TurnedGoal(r.state.p_world_body, r.goal_world, yaw));
+  return goals;
+}
+
+}  // namespace
 
 PolicyVec::PolicyVec(const Configs& configs, const quad_policy::PolicyNodeConfig& policy,
                      const quad_policy::PolicyMeta& meta, int num_slots, bool with_labeller) {
@@ -60,10 +100,7 @@ void PolicyVec::RunTorch(const quad_policy::TorchPolicy& policy, const std::vect
     }
   };
   refill();
-  std::vector<float> depth;
-  std::vector<quad_policy::StateVector> states;
-  std::vector<quad_core::VehicleState> odometry;
-  std::vector<Eigen::Vector3d> goals;
+  Batch batch;
   while (true) {
     bool any = false;
     for (long r : running) any = any || r >= 0;
@@ -79,17 +116,8 @@ void PolicyVec::RunTorch(const quad_policy::TorchPolicy& policy, const std::vect
       }
     }
     if (!waiting.empty()) {
-      depth.clear();
-      states.clear();
-      odometry.clear();
-      goals.clear();
-      for (int s : waiting) {
-        const DecisionRequest& r = slots_[static_cast<size_t>(s)]->request();
-        depth.insert(depth.end(), r.depth_x.begin(), r.depth_x.end());
-        states.push_back(r.state_x);
-        odometry.push_back(r.state);
-        goals.push_back(r.goal_world);
-      }
+      batch.Clear();
+      for (int s : waiting) batch.Add(slots_[static_cast<size_t>(s)]->request());
       // Refusals come in runs (a vehicle stuck in front of a box is refused again): the turned goals of a
       // slot whose previous decision ran the recovery join this pass, rows after the decisions' own.
       std::vector<std::vector<std::pair<Eigen::Vector3d, size_t>>> turned(waiting.size());
@@ -97,17 +125,13 @@ void PolicyVec::RunTorch(const quad_policy::TorchPolicy& policy, const std::vect
         const size_t s = static_cast<size_t>(waiting[j]);
         if (!recovered_last[s]) continue;
         const DecisionRequest& r = slots_[s]->request();
-        for (double yaw : slots_[s]->recovery_yaws_deg()) {
-          const Eigen::Vector3d g = quad_policy::TurnedGoal(r.state.p_world_body, r.goal_world, yaw);
-          turned[j].emplace_back(g, goals.size());
-          depth.insert(depth.end(), r.depth_x.begin(), r.depth_x.end());
-          states.push_back(quad_policy::EncodeState(r.state, g, m));
-          odometry.push_back(r.state);
-          goals.push_back(g);
+        for (const Eigen::Vector3d& g : TurnedGoals(*slots_[s], r)) {
+          turned[j].emplace_back(g, batch.goals.size());
+          batch.Add(r, g, m);
         }
         ++speculated_decisions_;
       }
-      const std::vector<float> y = policy.RunBatch(depth, states, &odometry, &goals);
+      const std::vector<float> y = policy.RunBatch(batch.depth, batch.states, &batch.odometry, &batch.goals);
       ++forward_passes_;
       batched_decisions_ += waiting.size();
       const size_t dim = static_cast<size_t>(m.network_output_dim());
@@ -127,21 +151,16 @@ void PolicyVec::RunTorch(const quad_policy::TorchPolicy& policy, const std::vect
         auto ask = [&, req](const Eigen::Vector3d& goal) {
           asked = true;
           if (answers.empty()) {
-            std::vector<Eigen::Vector3d> goals{goal};
-            for (double yaw : e.recovery_yaws_deg()) {
-              const Eigen::Vector3d g = quad_policy::TurnedGoal(req.state.p_world_body, req.goal_world, yaw);
-              if (g != goal) goals.push_back(g);
+            Batch fallback;
+            fallback.Add(req, goal, m);
+            for (const Eigen::Vector3d& g : TurnedGoals(e, req)) {
+              if (g != goal) fallback.Add(req, g, m);
             }
-            std::vector<float> d;
-            std::vector<quad_policy::StateVector> s;
-            std::vector<quad_core::VehicleState> o(goals.size(), req.state);
-            for (const Eigen::Vector3d& g : goals) {
-              d.insert(d.end(), req.depth_x.begin(), req.depth_x.end());
-              s.push_back(quad_policy::EncodeState(req.state, g, m));
-            }
-            const std::vector<float> ys = policy.RunBatch(d, s, &o, &goals);
+            const std::vector<float> ys =
+                policy.RunBatch(fallback.depth, fallback.states, &fallback.odometry, &fallback.goals);
             ++recovery_passes_;
-            for (size_t g = 0; g < goals.size(); ++g) answers.emplace_back(goals[g], row(ys, g));
+            for (size_t g = 0; g < fallback.goals.size(); ++g)
+              answers.emplace_back(fallback.goals[g], row(ys, g));
           }
           for (const auto& [g, a] : answers) {
             if (g == goal) return a;
