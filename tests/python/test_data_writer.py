@@ -182,6 +182,18 @@ def test_the_python_reader_reads_the_python_writers_records_exactly(tmp_path: Pa
     assert rec["t_total_ms"] == 3.5 and rec["num_ctrl_pts"] == 8 and rec["num_knots"] == 12
 
 
+def test_given_seqs_are_kept_with_their_gaps_and_must_increase(tmp_path: Path) -> None:
+    w = DatasetWriter(config(tmp_path / "py"))
+    assert w.record(sample(0), seq=4) == ("queued", 4)
+    assert w.record(sample(1)) == ("queued", 5)  # the default continues after the given one
+    assert w.record(sample(2), seq=9) == ("queued", 9)
+    with pytest.raises(WriterError, match="seq 9 is not after the previous record's 9"):
+        w.record(sample(3), seq=9)
+    w.finalize()
+    ds = open_dataset(tmp_path / "py")
+    assert ds.verify().ok and [int(ds[i]["seq"]) for i in range(len(ds))] == [4, 5, 9]
+
+
 def test_invalid_records_are_rejected_with_the_cpp_writers_reasons(tmp_path: Path) -> None:
     # The C++ writer's own words for the same faults (write_synthetic_dataset with too small limits).
     tool = find_collector_tool("write_synthetic_dataset")

@@ -157,8 +157,14 @@ def test_train_round_trains_in_this_process_with_the_real_trainer(
 
     monkeypatch.setattr(subprocess, "Popen", no_training_child)
     root = Path(__file__).resolve().parents[2]
+    rng = np.random.default_rng(3)  # depth at least the network's 32x32 input (the loader refuses smaller)
     recs = [
-        dataclasses.replace(r, obs=dataclasses.replace(r.obs, episode_id=ep))
+        dataclasses.replace(
+            r,
+            obs=dataclasses.replace(
+                r.obs, episode_id=ep, depth_m=rng.uniform(0, 10, size=(32, 32)).astype(np.float32)
+            ),
+        )
         for ep in range(4)
         for r in make_records(8)
     ]

@@ -361,9 +361,11 @@ class DatasetWriter:
         self._write_manifest("incomplete")
 
     # ---- records ----
-    def record(self, r: PlanRecordData) -> tuple[str, int | str]:
+    def record(self, r: PlanRecordData, seq: int | None = None) -> tuple[str, int | str]:
         """("queued", seq) once written; ("rejected", reason) for an invalid record (counted, not written);
-        ("lost", error) after an I/O error stopped the writer; WriterError after finalize()."""
+        ("lost", error) after an I/O error stopped the writer; WriterError after finalize(). `seq`: the
+        record's sequence number when it is copied from another dataset (quad_il.data.compact keeps the
+        source's, gaps included; must exceed the previous record's); by default the next one."""
         if self.finalized:
             raise WriterError(f"{self.dir}: record() called after finalize()")
         why = validate(r, self.config)
@@ -375,8 +377,12 @@ class DatasetWriter:
         if self.error:
             self.counts.lost += 1
             return "lost", self.error
-        seq = self._next_seq
-        self._next_seq += 1
+        if seq is not None and seq < self._next_seq:
+            raise WriterError(
+                f"{self.dir}: seq {seq} is not after the previous record's {self._next_seq - 1}"
+            )
+        seq = self._next_seq if seq is None else seq
+        self._next_seq = seq + 1
         self.counts.submitted += 1
         try:
             self._write(r, seq)

@@ -426,10 +426,17 @@ def load_dataset(
     paths: Sequence[str | Path], preprocessor: DepthPreprocessor, shards: ShardOptions = DEFAULT_SHARD_OPTIONS
 ) -> PreparedData:
     """Read, validate and preprocess every source; one PreparedData in the order of `paths`."""
-    parts = [
-        prepare_arrays(read_source(path, kind, shards), preprocessor, str(path))[0]
-        for path, kind in expand_paths(paths)
-    ]
+    parts = []
+    for path, kind in expand_paths(paths):
+        arrays = read_source(path, kind, shards)
+        depth = arrays.get("depth_m")
+        out_h, out_w = preprocessor.out_height, preprocessor.out_width
+        if depth is not None and depth.ndim == 3 and (depth.shape[1] < out_h or depth.shape[2] < out_w):
+            raise DatasetError(
+                f"{path}: depth is stored at {depth.shape[2]}x{depth.shape[1]}, smaller than the network "
+                f"input {out_w}x{out_h} (width x height): area resizing would upsample it"
+            )
+        parts.append(prepare_arrays(arrays, preprocessor, str(path))[0])
     return concatenate(parts)
 
 
