@@ -256,6 +256,37 @@ def test_shards_read_directly_equal_their_postprocessed_npz(tmp_path: Path) -> N
     assert len(split_by_episode(direct.world_seed, direct.episode_id, 0.25, 0).val_episodes) == 1
 
 
+def test_a_shard_directory_is_prepared_shard_by_shard_as_a_whole(tmp_path: Path) -> None:
+    from quad_il.data.synthetic import find_collector_tool, write_synthetic_dataset
+    from quad_il.learning.dataset import prepare_arrays, shard_dir_arrays
+
+    try:
+        find_collector_tool("write_synthetic_dataset")
+    except FileNotFoundError as e:
+        pytest.skip(f"cpp_data_collector not built: {e}")
+    # 64x48 records of about 10 KB, shards of 0.05 MB: several shards, episodes across their boundaries.
+    path = write_synthetic_dataset(
+        tmp_path / "ds", seed=5, records=40, width=64, height=48, records_per_episode=7, shard_size_mb=0.05
+    )
+    assert len(list(path.glob("shard_*"))) >= 3
+    by_shard = load_dataset([path], PRE)
+    whole = prepare_arrays(shard_dir_arrays(path), PRE, str(path))[0]
+    assert len(by_shard) == 40 and [(s.path, s.num_samples) for s in by_shard.sources] == [(str(path), 40)]
+    assert by_shard.sources == whole.sources
+    for name in (
+        "depth_x",
+        "p_world_body",
+        "v_world",
+        "q_world_body",
+        "goal_world",
+        "ctrl_world",
+        "ctrl_local",
+    ):
+        assert torch.equal(getattr(by_shard, name), getattr(whole, name)), name
+    for name in ("episode_id", "world_seed", "sim_time_s"):
+        assert np.array_equal(getattr(by_shard, name), getattr(whole, name)), name
+
+
 def test_a_directory_that_is_no_dataset_is_rejected(tmp_path: Path) -> None:
     (tmp_path / "empty").mkdir()
     with pytest.raises(DatasetError, match="cannot read as a shard dataset"):

@@ -24,7 +24,7 @@ import argparse
 import logging
 import os
 import sys
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
 
@@ -307,6 +307,21 @@ def concatenate(parts: Sequence[FixedSizeArrays]) -> FixedSizeArrays:
         horizon_s=first.horizon_s,
         format_version=first.format_version,
     )
+
+
+def iter_shard_arrays(
+    in_dir: str | os.PathLike[str],
+    *,
+    num_ctrl_pts: int = DEFAULT_NUM_CTRL_PTS,
+    horizon_s: float = DEFAULT_HORIZON_S,
+    on_corrupt: OnCorrupt = "raise",
+) -> Iterator[tuple[str, FixedSizeArrays]]:
+    """(shard file name, its valid records' arrays) for every shard of one dataset that holds valid records,
+    in order: the parts postprocess_datasets concatenates, one at a time (a reader that reduces each part, as
+    training's loader does, holds one shard's full-resolution depth instead of the dataset's)."""
+    for shard, records, _indices in open_dataset(in_dir).valid_record_arrays(on_corrupt=on_corrupt):
+        if len(records):
+            yield shard.path.name, records_to_arrays(records, num_ctrl_pts=num_ctrl_pts, horizon_s=horizon_s)
 
 
 def postprocess_datasets(
