@@ -118,6 +118,7 @@ def run_round(
         str(_abs(tracker_config)),
         str(_abs(vehicle_config)),
     )
+    e.TorchPolicy(str(_abs(policy)))  # a file that is no exported policy fails here, before the sink opens
     policy_cfg = e.load_policy_config(str(_abs(policy_config)))
     e.configure_torch_threads(policy_cfg.num_threads)  # the nodes' setting (config/policy.yaml num_threads)
     run_info = [
