@@ -45,7 +45,8 @@ eval: build
 	  --backend "$(BACKEND)" $(if $(CONTROLLERS),--controllers "$(CONTROLLERS)",) --out "$(EVAL_OUT)" \
 	  $(if $(SET),--set $(SET),) $(if $(SEEDS),--seeds "$(SEEDS)",) \
 	  $(if $(EPISODES),--episodes $(EPISODES),) $(if $(DENSITY),--density $(DENSITY),) \
-	  $(if $(POLICY_CONFIG),--policy-config "$(POLICY_CONFIG)",) $(if $(FORCE_NEW),--force-new,)
+	  $(if $(POLICY_CONFIG),--policy-config "$(POLICY_CONFIG)",) $(if $(FORCE_NEW),--force-new,) \
+	  $(if $(WORKERS),--workers $(WORKERS),)
 
 bench-%: build
 	@bash scripts/bench.sh $*
