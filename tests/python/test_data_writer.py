@@ -13,7 +13,6 @@ import pytest
 import yaml
 
 from quad_il.data import open_dataset
-from quad_il.data.format import decode_depth_codes
 from quad_il.data.synthetic import find_collector_tool, write_synthetic_dataset
 from quad_il.data.writer import DatasetWriter, PlanRecordData, WriterConfig, WriterError, utf8_prefix
 
@@ -42,39 +41,6 @@ def config(out: Path, **changes: object) -> WriterConfig:
     return WriterConfig(**values)  # type: ignore[arg-type]
 
 
-def as_input(rec: np.void) -> PlanRecordData:
-    """A stored record back into the writer's input (decoding the depth codes reproduces them exactly)."""
-    n, k, y = int(rec["num_ctrl_pts"]), int(rec["num_knots"]), int(rec["num_yaw_pts"])
-    return PlanRecordData(
-        episode_id=int(rec["episode_id"]),
-        world_seed=int(rec["world_seed"]),
-        sim_time_s=float(rec["sim_time_s"]),
-        depth_m=decode_depth_codes(rec["depth_code"]),
-        depth_stamp_s=float(rec["depth_stamp_s"]),
-        odom_stamp_s=float(rec["odom_stamp_s"]),
-        p_world_body=rec["p_world_body"],
-        v_world=rec["v_world"],
-        q_world_body=rec["q_world_body"],
-        w_body=rec["w_body"],
-        goal_world=rec["goal_world"],
-        order=int(rec["bspline_order"]),
-        traj_id=int(rec["bspline_traj_id"]),
-        start_time_s=float(rec["bspline_start_time_s"]),
-        knots=rec["knots"][:k],
-        ctrl_pts_world=rec["ctrl_pts_world"][:n],
-        yaw_pts=rec["yaw_pts"][:y],
-        yaw_dt_s=float(rec["bspline_yaw_dt_s"]),
-        status_code=int(rec["plan_status_code"]),
-        status_text=bytes(rec["plan_status_text"]).rstrip(b"\0").decode("utf-8"),
-        timings_ms=(
-            float(rec["t_map_update_ms"]),
-            float(rec["t_frontend_ms"]),
-            float(rec["t_optimization_ms"]),
-            float(rec["t_total_ms"]),
-        ),
-    )
-
-
 def manifest_without_times(path: Path) -> list[str]:
     return [
         line
@@ -94,7 +60,7 @@ def test_the_same_records_give_byte_identical_shards_and_the_same_manifest(tmp_p
         w.set_run_info(key, value)
     for shard in ds.shards:
         for rec in shard.records:
-            assert w.record(as_input(rec))[0] == "queued"
+            assert w.record(PlanRecordData.from_stored(rec))[0] == "queued"
     assert w.finalize()
     cpp_files = sorted(p.name for p in cpp.iterdir())
     assert sorted(p.name for p in (tmp_path / "py").iterdir()) == cpp_files
@@ -221,7 +187,7 @@ def test_invalid_records_are_rejected_with_the_cpp_writers_reasons(tmp_path: Pat
     ds_dir = write_synthetic_dataset(tmp_path / "ok", records=4, width=W, height=H)
     records = [r for s in open_dataset(ds_dir).shards for r in s.records]
     w = DatasetWriter(config(tmp_path / "py", max_ctrl_pts=20, max_yaw_pts=4))
-    py_reasons = [w.record(as_input(r))[1] for r in records]
+    py_reasons = [w.record(PlanRecordData.from_stored(r))[1] for r in records]
     assert py_reasons == cpp_reasons and len(cpp_reasons) == 4
     bad = {
         "odom_stamp_s": (float("nan"), "odometry has a non-finite value"),

@@ -138,41 +138,6 @@ def pool_depth_codes(codes: np.ndarray, width: int, height: int, max_depth_m: fl
     return pooled
 
 
-def plan_record(rec: np.void, depth_m: np.ndarray) -> PlanRecordData:
-    """A stored record's inputs for the writer, with another depth image (every other field as stored)."""
-    names = rec.dtype.names or ()
-    n, nk, ny = int(rec["num_ctrl_pts"]), int(rec["num_knots"]), int(rec["num_yaw_pts"])
-    return PlanRecordData(
-        episode_id=int(rec["episode_id"]),
-        world_seed=int(rec["world_seed"]),
-        sim_time_s=float(rec["sim_time_s"]),
-        depth_m=depth_m,
-        depth_stamp_s=float(rec["depth_stamp_s"]),
-        odom_stamp_s=float(rec["odom_stamp_s"]),
-        p_world_body=rec["p_world_body"],
-        v_world=rec["v_world"],
-        q_world_body=rec["q_world_body"],
-        w_body=rec["w_body"],
-        goal_world=rec["goal_world"],
-        order=int(rec["bspline_order"]),
-        traj_id=int(rec["bspline_traj_id"]),
-        start_time_s=float(rec["bspline_start_time_s"]),
-        knots=rec["knots"][:nk],
-        ctrl_pts_world=rec["ctrl_pts_world"][:n],
-        yaw_pts=rec["yaw_pts"][:ny] if "yaw_pts" in names else (),
-        yaw_dt_s=float(rec["bspline_yaw_dt_s"]),
-        status_code=int(rec["plan_status_code"]),
-        status_text=bytes(rec["plan_status_text"]).decode("utf-8"),
-        timings_ms=(
-            float(rec["t_map_update_ms"]),
-            float(rec["t_frontend_ms"]),
-            float(rec["t_optimization_ms"]),
-            float(rec["t_total_ms"]),
-        ),
-        flags=int(rec["flags"]),
-    )
-
-
 def directory_bytes(path: Path) -> int:
     return sum(p.stat().st_size for p in path.iterdir() if p.is_file())
 
@@ -337,7 +302,7 @@ def _write(src_ds: Dataset, dst: Path, dst_size: tuple[int, int], max_depth_m: f
                 for i, rec in enumerate(chunk):
                     where = f"{shard.path} record {int(indices[start + i])}"
                     try:
-                        r = plan_record(rec, pooled[i])
+                        r = PlanRecordData.from_stored(rec, pooled[i])
                     except UnicodeDecodeError as e:
                         raise CompactError(f"{where}: plan_status_text is not UTF-8 ({e})") from None
                     # A compacted dataset keeps the source's seqs (with the gaps of dropped records).

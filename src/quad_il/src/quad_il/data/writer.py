@@ -46,6 +46,7 @@ from quad_il.data.format import (
     STATUS_TEXT_BYTES,
     DatasetError,
     ShardHeader,
+    decode_depth_codes,
     encode_depth_m,
     layout_json,
     record_dtype,
@@ -119,6 +120,43 @@ class PlanRecordData:
     status_text: str = ""
     timings_ms: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # map, frontend, optimisation, total
     flags: int = 0
+
+    @classmethod
+    def from_stored(cls, rec: np.void, depth_m: np.ndarray | None = None) -> PlanRecordData:
+        """A stored record (quad_il.data.shards) back into the writer's input: every field as stored, the
+        depth decoded from its codes (which re-encodes to them exactly) unless another image is given.
+        UnicodeDecodeError for a status text that is not UTF-8."""
+        names = rec.dtype.names or ()
+        n, nk, ny = int(rec["num_ctrl_pts"]), int(rec["num_knots"]), int(rec["num_yaw_pts"])
+        return cls(
+            episode_id=int(rec["episode_id"]),
+            world_seed=int(rec["world_seed"]),
+            sim_time_s=float(rec["sim_time_s"]),
+            depth_m=decode_depth_codes(rec["depth_code"]) if depth_m is None else depth_m,
+            depth_stamp_s=float(rec["depth_stamp_s"]),
+            odom_stamp_s=float(rec["odom_stamp_s"]),
+            p_world_body=rec["p_world_body"],
+            v_world=rec["v_world"],
+            q_world_body=rec["q_world_body"],
+            w_body=rec["w_body"],
+            goal_world=rec["goal_world"],
+            order=int(rec["bspline_order"]),
+            traj_id=int(rec["bspline_traj_id"]),
+            start_time_s=float(rec["bspline_start_time_s"]),
+            knots=rec["knots"][:nk],
+            ctrl_pts_world=rec["ctrl_pts_world"][:n],
+            yaw_pts=rec["yaw_pts"][:ny] if "yaw_pts" in names else (),
+            yaw_dt_s=float(rec["bspline_yaw_dt_s"]),
+            status_code=int(rec["plan_status_code"]),
+            status_text=bytes(rec["plan_status_text"]).rstrip(b"\0").decode("utf-8"),
+            timings_ms=(
+                float(rec["t_map_update_ms"]),
+                float(rec["t_frontend_ms"]),
+                float(rec["t_optimization_ms"]),
+                float(rec["t_total_ms"]),
+            ),
+            flags=int(rec["flags"]),
+        )
 
 
 def validate(r: PlanRecordData, cfg: WriterConfig) -> str:

@@ -160,7 +160,7 @@ DEFAULT_SHARD_OPTIONS = ShardOptions()
 def shard_dir_arrays(path: Path, options: ShardOptions = DEFAULT_SHARD_OPTIONS) -> dict[str, np.ndarray]:
     """Arrays of a shard directory, resampled exactly as the npz postprocessing does (quad_il.data)."""
     from quad_il.data import DatasetError as CollectorDatasetError
-    from quad_il.data.postprocess import NPZ_ARRAYS, postprocess_datasets
+    from quad_il.data.postprocess import postprocess_datasets
 
     try:
         fixed = postprocess_datasets(
@@ -171,7 +171,14 @@ def shard_dir_arrays(path: Path, options: ShardOptions = DEFAULT_SHARD_OPTIONS) 
         )
     except (CollectorDatasetError, ValueError) as e:
         raise DatasetError(f"{path}: cannot read as a shard dataset: {e}") from None
-    out: dict[str, np.ndarray] = {name: getattr(fixed, name) for name in NPZ_ARRAYS}
+    return _npz_arrays(fixed)
+
+
+def _npz_arrays(fixed: Any) -> dict[str, Any]:
+    """quad_il.data.postprocess.FixedSizeArrays as the .npz's arrays, which prepare_arrays reads."""
+    from quad_il.data.postprocess import NPZ_ARRAYS
+
+    out: dict[str, Any] = {name: getattr(fixed, name) for name in NPZ_ARRAYS}
     out["num_ctrl_pts"] = np.int64(fixed.num_ctrl_pts)
     out["horizon_s"] = np.float64(fixed.horizon_s)
     out["format_version"] = np.int64(fixed.format_version)
@@ -439,7 +446,7 @@ def prepare_shard_dir(
     a time instead of the dataset's (a DAgger round of 50k records is 7 GB of float16 depth at 320x240, and
     concatenating the shards doubled that). Error messages name the shard and the record within it."""
     from quad_il.data import DatasetError as CollectorDatasetError
-    from quad_il.data.postprocess import NPZ_ARRAYS, iter_shard_arrays
+    from quad_il.data.postprocess import iter_shard_arrays
 
     parts: list[PreparedData] = []
     shards = iter_shard_arrays(
@@ -456,10 +463,7 @@ def prepare_shard_dir(
         if item is None:
             break
         name, fixed = item
-        arrays: dict[str, Any] = {key: getattr(fixed, key) for key in NPZ_ARRAYS}
-        arrays["num_ctrl_pts"] = np.int64(fixed.num_ctrl_pts)
-        arrays["horizon_s"] = np.float64(fixed.horizon_s)
-        arrays["format_version"] = np.int64(fixed.format_version)
+        arrays = _npz_arrays(fixed)
         _check_depth_size(fixed.depth_m, str(path), preprocessor)
         parts.append(prepare_arrays(arrays, preprocessor, str(path / name))[0])
         del item, fixed, arrays  # the shard's full-resolution depth
