@@ -139,6 +139,35 @@ def test_the_evaluations_engine_backend_writes_the_runners_results(tmp_path, goa
     )
 
 
+def test_a_killed_dagger_round_resumes_to_the_dataset_of_a_straight_run(tmp_path, goal_line) -> None:
+    """A round killed after writing an episode's labels but before logging it, with its writer dead (the
+    manifest left incomplete): --resume recovers the dataset, cuts that episode's records, flies it again and
+    ends with the straight run's dataset; other arguments or another learner are refused."""
+    kw = dict(slots=2, planner_config=PRIVILEGED, episode_timeout_s=2.0, progress=False)
+    straight, killed = tmp_path / "straight", tmp_path / "killed"
+    dagger.run_round(str(goal_line), str(straight), "1,2", 2, **kw)
+    dagger.run_round(str(goal_line), str(killed), "1,2", 2, **kw)
+    rows = EpisodeLog.read(killed / "episodes.csv")
+    assert rows[1].samples > 0
+    EpisodeLog.rewrite(killed / "episodes.csv", rows[:1])
+    manifest = killed / "manifest.yaml"
+    manifest.write_text(manifest.read_text().replace("status: complete", "status: incomplete"))
+    with pytest.raises(PrepareError, match="already holds a dataset"):
+        dagger.run_round(str(goal_line), str(killed), "1,2", 2, **kw)
+    with pytest.raises(PrepareError, match=r"collected with episodes .2., this launch has .3."):
+        dagger.run_round(str(goal_line), str(tmp_path / "straight"), "1,2", 3, resume=True, **kw)
+    other = export_goal_line_policy(tmp_path / "other.ts", speed_mps=1.0)
+    with pytest.raises(PrepareError, match="the content of policy differs"):
+        dagger.run_round(str(other), str(killed), "1,2", 2, resume=True, **kw)
+    s = dagger.run_round(str(goal_line), str(killed), "1,2", 2, resume=True, **kw)
+    assert s["complete"] and s["episodes"] == 2
+    assert EpisodeLog.read(killed / "episodes.csv") == EpisodeLog.read(straight / "episodes.csv")
+    a, b = (read_source(*expand_paths([d])[0]) for d in (straight, killed))
+    assert set(a) == set(b)
+    for key in a:
+        np.testing.assert_array_equal(np.asarray(a[key]), np.asarray(b[key]), err_msg=key)
+
+
 def test_a_dagger_round_is_the_same_dataset_on_one_worker_or_two(tmp_path, goal_line) -> None:
     arrays = {}
     for workers in (1, 2):

@@ -62,6 +62,9 @@ CONFIG_KEYS = (
     "tracker_config",
     "vehicle_config",
 )
+# Files a run may add to its identity, compared by content when either run has them: the learner of a DAgger
+# round (quad_il.engine.dagger) and its policy config decide its episodes as much as the configs above do.
+OPTIONAL_FILE_KEYS = ("policy", "policy_config")
 # Launch arguments that decide which episodes are flown and how they are recorded.
 VALUE_KEYS = ("seeds", "episodes", "max_samples", "episode_timeout_s", "time_mode", "time_factor")
 
@@ -79,17 +82,19 @@ def _sha256(path: Path) -> str:
 
 def run_identity(args: Mapping[str, str]) -> dict[str, str]:
     """The identity of a run from its launch arguments: values as given (seeds normalised to a list), config
-    files by content (`sha256:...`). Missing or unknown keys are errors naming them."""
+    files by content (`sha256:...`; OPTIONAL_FILE_KEYS only when given). Missing or unknown keys are errors
+    naming them."""
     missing = [k for k in (*VALUE_KEYS, *CONFIG_KEYS) if k not in args]
-    unknown = sorted(set(args) - set(VALUE_KEYS) - set(CONFIG_KEYS))
+    unknown = sorted(set(args) - set(VALUE_KEYS) - set(CONFIG_KEYS) - set(OPTIONAL_FILE_KEYS))
     if missing or unknown:
         raise ResumeError(f"run identity: missing keys {missing}, unknown keys {unknown}")
     out: dict[str, str] = {}
     for k in VALUE_KEYS:
         v = str(args[k]).strip()
         out[k] = ",".join(map(str, parse_seed_ranges(v))) if k == "seeds" else v
-    for k in CONFIG_KEYS:
-        out[k] = "sha256:" + _sha256(Path(args[k]))
+    for k in (*CONFIG_KEYS, *OPTIONAL_FILE_KEYS):
+        if k in args:
+            out[k] = "sha256:" + _sha256(Path(args[k]))
     return out
 
 
@@ -124,9 +129,9 @@ def write_run_file(d: Path, identity: Mapping[str, str]) -> None:
 
 def check_identity(d: Path, identity: Mapping[str, str]) -> None:
     recorded = _read_run_file(d)
-    for k in (*VALUE_KEYS, *CONFIG_KEYS):
+    for k in (*VALUE_KEYS, *CONFIG_KEYS, *OPTIONAL_FILE_KEYS):
         if recorded.get(k) != identity.get(k):
-            what = "the content of " + k if k in CONFIG_KEYS else k
+            what = "the content of " + k if k not in VALUE_KEYS else k
             raise ResumeError(
                 f"resume: {d} was collected with {k} {recorded.get(k)!r}, this launch has "
                 f"{identity.get(k)!r} ({what} differs); resume with the run's own arguments, or pass "

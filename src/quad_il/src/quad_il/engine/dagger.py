@@ -12,6 +12,10 @@ Episode i is keyed (world seed seeds[i % len(seeds)], index i) with the collecti
 are; episodes are written in key order. OUT holds the dataset, episodes.csv (the learner's outcome of each
 episode; samples = its labels) and dagger_summary.yaml. --workers threads (quad_il.engine.policy_fleet) each
 fly --slots episodes together, every frame at which several decide answered by one batched forward pass.
+A round stopped early (Ctrl-C, a crash, the machine's stop) is continued with the same command and --resume,
+as collection runs are (quad_il.collection.resume): the round's identity (OUT/collect_run.yaml: arguments,
+configs and the learner by content) must be the same, a dataset left incomplete is recovered and the
+unfinished episode's records are cut before the remaining episodes are flown.
 `--policy none` (the IL manager's round 0 without an initial policy) collects the expert's own
 demonstrations instead (quad_il.engine.collect), as BC.
 """
@@ -107,7 +111,25 @@ def run_round(
             "output_dir": output_dir,
         },
     )
-    out = prepare.prepare_output_dir(output_dir, repo_root(), resume=resume)
+    # The run's identity (quad_il.collection.resume, with the learner and its config): --resume continues only
+    # the same round, recovering a dataset a killed round left and cutting its unfinished episode's records.
+    run_args = {
+        "seeds": seeds,
+        "episodes": str(episodes),
+        "max_samples": "0",
+        "episode_timeout_s": str(episode_timeout_s),
+        "time_mode": "lockstep",
+        "time_factor": "1.0",
+        "collect_config": str(_abs(collect_config)),
+        "collector_config": str(_abs(collector_config)),
+        "sim_config": str(_abs(sim_config)),
+        "planner_config": str(_abs(planner_config)),
+        "tracker_config": str(_abs(tracker_config)),
+        "vehicle_config": str(_abs(vehicle_config)),
+        "policy": str(_abs(policy)),
+        "policy_config": str(_abs(policy_config)),
+    }
+    out = prepare.prepare_output_dir(output_dir, repo_root(), resume=resume, run_args=run_args)
     log_path = out / "episodes.csv"
     previous = EpisodeLog.read(log_path) if log_path.exists() else []
     first = len(previous)
