@@ -139,7 +139,7 @@ def test_the_evaluations_engine_backend_writes_the_runners_results(tmp_path, goa
     )
 
 
-def test_a_killed_dagger_round_resumes_to_the_dataset_of_a_straight_run(tmp_path, goal_line) -> None:
+def test_a_killed_dagger_round_resumes_to_the_dataset_of_a_straight_run(tmp_path, goal_line, capsys) -> None:
     """A round killed after writing an episode's labels but before logging it, with its writer dead (the
     manifest left incomplete): --resume recovers the dataset, cuts that episode's records, flies it again and
     ends with the straight run's dataset; other arguments or another learner are refused."""
@@ -159,8 +159,12 @@ def test_a_killed_dagger_round_resumes_to_the_dataset_of_a_straight_run(tmp_path
     other = export_goal_line_policy(tmp_path / "other.ts", speed_mps=1.0)
     with pytest.raises(PrepareError, match="the content of policy differs"):
         dagger.run_round(str(other), str(killed), "1,2", 2, resume=True, **kw)
+    capsys.readouterr()
     s = dagger.run_round(str(goal_line), str(killed), "1,2", 2, resume=True, **kw)
     assert s["complete"] and s["episodes"] == 2
+    err = capsys.readouterr().err
+    assert "quad_il.engine.dagger: resume: recover:" in err
+    assert "quad_il.engine.dagger: resume: truncate:" in err
     assert EpisodeLog.read(killed / "episodes.csv") == EpisodeLog.read(straight / "episodes.csv")
     a, b = (read_source(*expand_paths([d])[0]) for d in (straight, killed))
     assert set(a) == set(b)

@@ -66,12 +66,16 @@ def dataset_files(d: Path) -> list[str]:
 
 
 def prepare_output_dir(
-    text: str, root: Path | None = None, resume: bool = False, run_args: dict[str, str] | None = None
+    text: str,
+    root: Path | None = None,
+    resume: bool = False,
+    run_args: dict[str, str] | None = None,
+    tool: str = "collect.launch",
 ) -> Path:
     """Checks and creates the output directory. run_args (the launch arguments of
     quad_il.collection.resume.run_identity) are recorded in DIR/collect_run.yaml; resume: DIR may hold the
     run to continue, which is made ready for it when run_args are given (collect.launch gives them in one
-    of its calls)."""
+    of its calls). tool names the command in the resume's messages on stderr."""
     d = resolve_output_dir(text, root)
     if d.exists() and not d.is_dir():
         raise PrepareError(f"output_dir {d} exists and is not a directory")
@@ -96,7 +100,7 @@ def prepare_output_dir(
             if resume:
                 plan = resuming.plan_resume(d, identity, collect_params(run_args))
                 for action in plan.actions:
-                    print(f"collect.launch: resume: {action}", file=sys.stderr)
+                    print(f"{tool}: resume: {action}", file=sys.stderr)
             else:
                 resuming.write_run_file(d, identity)
         except ValueError as exc:  # ResumeError, and bad seeds / config values

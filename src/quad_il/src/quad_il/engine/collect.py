@@ -111,7 +111,9 @@ def collect(
             "episode_timeout_s": episode_timeout_s,
         },
     )
-    out = prepare.prepare_output_dir(str(output_dir), root, resume=resume, run_args=run_args)
+    out = prepare.prepare_output_dir(
+        str(output_dir), root, resume=resume, run_args=run_args, tool="quad_il.engine.collect"
+    )
     log_path = out / "episodes.csv"
     previous = EpisodeLog.read(log_path) if log_path.exists() else []
     first = len(previous)

@@ -129,7 +129,9 @@ def run_round(
         "policy": str(_abs(policy)),
         "policy_config": str(_abs(policy_config)),
     }
-    out = prepare.prepare_output_dir(output_dir, repo_root(), resume=resume, run_args=run_args)
+    out = prepare.prepare_output_dir(
+        output_dir, repo_root(), resume=resume, run_args=run_args, tool="quad_il.engine.dagger"
+    )
     log_path = out / "episodes.csv"
     previous = EpisodeLog.read(log_path) if log_path.exists() else []
     first = len(previous)
