@@ -118,8 +118,9 @@ def _read_run_file(d: Path) -> dict[str, str]:
 
 def write_run_file(d: Path, identity: Mapping[str, str]) -> None:
     text = (
-        "# The arguments of the collect.launch run writing this directory (quad_il.collection.resume);\n"
-        "# resume:=true continues the run only with the same ones.\n"
+        "# The arguments of the run writing this directory (collect.launch, quad_il.engine.collect or\n"
+        "# quad_il.engine.dagger; quad_il.collection.resume): resuming it (resume:=true, --resume)\n"
+        "# continues the run only with the same ones.\n"
         + yaml.safe_dump({"identity": dict(identity)}, sort_keys=False)
     )
     tmp = d / (RUN_FILE + ".tmp")
