@@ -156,6 +156,26 @@ def test_resolve_gives_a_full_config_its_own_path_and_an_overlay_a_merged_file(t
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == sorted([first.name, second.name])
 
 
+def test_a_resolved_sim_overlay_keeps_its_file_paths_pointing_where_they_pointed(tmp_path: Path) -> None:
+    """The merged file lives in another directory: the simulator's relative file paths (read against the
+    config's directory by the C++ loader) become absolute against the overlay's; others stay as they are."""
+    cfg = tmp_path / "cfg"
+    cfg.mkdir()
+    (cfg / "sim.yaml").write_text((ROOT / "config" / "sim.yaml").read_text())
+    (cfg / "dense.yaml").write_text(
+        "overlay_of: sim.yaml\nworld:\n  file: worlds/w.yaml\n"
+        "  generator:\n    density_boxes_per_100m2: 18.75\n"
+    )
+    merged = resolve(cfg / "dense.yaml", tmp_path / "out")
+    assert merged.parent == tmp_path / "out"
+    tree = yaml.safe_load(merged.read_text())
+    assert tree["vehicle_file"] == str(cfg / "vehicle.yaml")
+    assert tree["world"]["file"] == str(cfg / "worlds" / "w.yaml")
+    assert tree["voxel_map"]["octomap_file"] == ""  # empty: still "don't"
+    assert tree["world"]["generator"]["density_boxes_per_100m2"] == 18.75
+    assert resolve(cfg / "sim.yaml") == cfg / "sim.yaml"  # a full config is read where it is, unchanged
+
+
 def test_the_cli_prints_the_path_without_a_newline_and_names_a_bad_key(tmp_path: Path) -> None:
     write(tmp_path / "base.yaml", BASE)
     ov = write(tmp_path / "ov.yaml", {"overlay_of": "base.yaml", "a": 5})

@@ -4,7 +4,9 @@ Parity with collect.launch is tests/python/test_engine_parity.py. Needs the buil
 
 from __future__ import annotations
 
+import hashlib
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -61,6 +63,10 @@ def test_bad_arguments_name_what_is_wrong(tmp_path, capsys) -> None:
         collect.collect(tmp_path / "b", "1", 1, backend="mpi", progress=False)
     assert dagger.main(["--policy", str(tmp_path / "none.ts"), "--out", str(tmp_path / "c")]) == 2
     assert "no such file" in capsys.readouterr().err
+    policy = export_goal_line_policy(tmp_path / "p.ts")
+    argv = ["--policy", str(policy), "--out", str(tmp_path / "d"), "--sim-config", "config/nope.yaml"]
+    assert dagger.main(argv) == 2
+    assert "sim_config " in capsys.readouterr().err and not (tmp_path / "d").exists()
 
 
 @pytest.fixture(scope="module")
@@ -137,6 +143,26 @@ def test_the_evaluations_engine_backend_writes_the_runners_results(tmp_path, goa
         )
         == 1
     )
+
+
+def test_a_rounds_worlds_come_from_its_sim_config_overlay(tmp_path, goal_line) -> None:
+    """--sim-config (an overlay: the round's worlds at 1.5x the box density) is the config the round flies and
+    records in its identity; the denser worlds give the same episodes other labels."""
+    dense = tmp_path / "sim_dense.yaml"
+    base = Path(__file__).resolve().parents[2] / "config" / "sim.yaml"
+    dense.write_text(  # in tmp_path: its relative vehicle_file would name tmp_path's, so it names config/'s
+        f"overlay_of: {base}\nvehicle_file: {base.parent / 'vehicle.yaml'}\n"
+        "world:\n  generator:\n    density_boxes_per_100m2: 18.75\n"
+    )
+    argv = ["--policy", str(goal_line), "--seeds", "1", "--episodes", "1", "--slots", "1"]
+    argv += ["--planner-config", PRIVILEGED, "--episode-timeout-s", "2", "--no-progress"]
+    assert dagger.main([*argv, "--out", str(tmp_path / "default")]) == 0
+    assert dagger.main([*argv, "--out", str(tmp_path / "dense"), "--sim-config", str(dense)]) == 0
+    identity = yaml.safe_load((tmp_path / "dense" / "collect_run.yaml").read_text())["identity"]
+    assert identity["sim_config"] == "sha256:" + hashlib.sha256(dense.read_bytes()).hexdigest()
+    a, b = (read_source(*expand_paths([tmp_path / d])[0]) for d in ("default", "dense"))
+    assert len(a["episode_id"]) > 0 and len(b["episode_id"]) > 0
+    assert not np.array_equal(np.asarray(a["depth_m"])[:1], np.asarray(b["depth_m"])[:1])
 
 
 def test_a_killed_dagger_round_resumes_to_the_dataset_of_a_straight_run(tmp_path, goal_line, capsys) -> None:

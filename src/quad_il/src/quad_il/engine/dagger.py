@@ -129,6 +129,9 @@ def run_round(
         "policy": str(_abs(policy)),
         "policy_config": str(_abs(policy_config)),
     }
+    for key, path in run_args.items():
+        if key.endswith("_config") and not Path(path).is_file():
+            raise ValueError(f"{key} {path}: no such file")  # before OUT is created
     out = prepare.prepare_output_dir(
         output_dir, repo_root(), resume=resume, run_args=run_args, tool="quad_il.engine.dagger"
     )
@@ -245,6 +248,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--policy-config", default="config/policy_plain.yaml", help="the learner's tier config")
     ap.add_argument("--planner-config", default="config/planner.yaml", help="the labelling expert's config")
     ap.add_argument(
+        "--sim-config",
+        default="config/sim.yaml",
+        help="the simulator's config or an overlay of it (e.g. a round's worlds at another box density)",
+    )
+    ap.add_argument(
         "--episode-timeout-s", type=float, default=0.0, help="episode limit (0: collect config's)"
     )
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -261,6 +269,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             resume=a.resume,
             policy_config=a.policy_config,
             planner_config=a.planner_config,
+            sim_config=a.sim_config,
             episode_timeout_s=a.episode_timeout_s,
             progress=not a.no_progress,
         )

@@ -8,7 +8,9 @@ Unlike an experiment overlay, every key an overlay sets must exist in its base w
 strict loader meets only later. An overlay may name another overlay as its base (a chain, no cycle).
 
 The merged tree is the config the variant always meant: relative paths in it are read, as before, against the
-overlay's directory by the loaders that resolve them (the IL manager, the episode manager).
+overlay's directory by the loaders that resolve them (the IL manager, the episode manager). `resolve` writes
+the merged file elsewhere, so it makes the file paths the C++ loaders read relative to their config (the keys
+of FILE_KEYS: the simulator's vehicle, world and OctoMap files) absolute against the overlay's directory.
 
 Python loaders call `load_tree`. A C++ node reads its file itself, so its launch file resolves the overlay
 while it is parsed (`<param name="config" command="PYTHON -m quad_il.tools.config_overlay resolve FILE"/>`,
@@ -36,6 +38,9 @@ import yaml
 from quad_il.tools.cli import HelpFormatter
 
 OVERLAY_KEY = "overlay_of"
+# Keys whose relative values a C++ loader reads against its config file's directory (quad_sim's config:
+# vehicle_file, world.file, voxel_map.octomap_file); a merged overlay written elsewhere gets them absolute.
+FILE_KEYS = ("vehicle_file", "file", "octomap_file")
 
 
 class OverlayError(ValueError):
@@ -133,6 +138,21 @@ def dump(tree: Mapping[str, Any], header: str = "") -> str:
     return header + yaml.safe_dump(dict(tree), sort_keys=False, default_flow_style=None)
 
 
+def with_absolute_files(tree: Any, base_dir: Path) -> Any:
+    """A copy of `tree`, every non-empty relative value of a FILE_KEYS key made absolute against base_dir."""
+    if isinstance(tree, Mapping):
+        out = {}
+        for k, v in tree.items():
+            if k in FILE_KEYS and isinstance(v, str) and v and not os.path.isabs(v):
+                out[k] = os.path.normpath(base_dir / v)
+            else:
+                out[k] = with_absolute_files(v, base_dir)
+        return out
+    if isinstance(tree, list):
+        return [with_absolute_files(v, base_dir) for v in tree]
+    return tree
+
+
 def default_out_dir() -> Path:
     return Path(tempfile.gettempdir()) / f"quad_il_configs_{os.getuid()}"
 
@@ -145,7 +165,7 @@ def resolve(path: str | os.PathLike[str], out_dir: str | os.PathLike[str] | None
     if base_of(p) is None:
         return p
     header = f"# {p} merged over its base by quad_il.tools.config_overlay; do not edit.\n"
-    text = dump(load_tree(p), header)
+    text = dump(with_absolute_files(load_tree(p), p.parent), header)
     digest = hashlib.sha256(text.encode()).hexdigest()[:16]
     d = Path(out_dir) if out_dir is not None else default_out_dir()
     d.mkdir(parents=True, exist_ok=True)
