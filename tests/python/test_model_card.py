@@ -142,6 +142,32 @@ def test_card_refusals_name_the_problem(tmp_path: Path, capsys: pytest.CaptureFi
     assert not (tmp_path / "m" / "policy.ts").exists()  # nothing shipped on a refusal
 
 
+def test_a_run_started_from_an_unfrozen_shipped_policy_carries_that_policys_card(tmp_path: Path) -> None:
+    from quad_il.learning.checkpoint import save_checkpoint
+
+    ckpt = tmp_path / "runs" / "unfrozen" / "checkpoints" / "best.pt"
+    ckpt.parent.mkdir(parents=True)
+    earlier = "## How it was made (oldest run first)\n\n### `runs/dagger_r4`\n\n- commit `c030c3f`\n"
+    origin = {
+        "policy_file": "models/quad_il_policy/policy.ts",
+        "sha256": "ab" * 32,
+        "calib": "data/r5_96",
+        "command": "python -m quad_il.learning.unfreeze models/quad_il_policy/policy.ts ...",
+        "model_card": earlier,
+    }
+    save_checkpoint({"format": "x", "unfrozen_from": origin}, ckpt)
+    d0 = _dataset(tmp_path / "data" / "r5", "44000-44499")
+    run = _run(tmp_path / "runs" / "r5", [d0], str(ckpt))
+    assert lineage(run) == [run]  # the unfrozen checkpoint is not a run: the lineage stops there
+    card = write_card(run, tmp_path / "m", [], hash_data=False).read_text()
+    shipped = f"`models/quad_il_policy/policy.ts`, sha256 `{'ab' * 32}`, rebuilt as the training checkpoint"
+    assert shipped in card
+    assert "BatchNorm statistics from `data/r5_96`" in card
+    # the earlier card's lineage, one heading level down, before the new run
+    assert card.index("#### `runs/dagger_r4`") < card.index(f"### `{run}`")
+    assert "### How it was made (oldest run first)" in card
+
+
 ROOT = Path(__file__).resolve().parents[2]
 
 

@@ -7,7 +7,9 @@ MODEL.md that says exactly how it was made and what it reaches.
 OUT receives policy.ts (copied from the run), train_config.yaml (the run's resolved configuration) and
 MODEL.md:
 - the training lineage: the run and, through `run.init_weights`, every run it was fine-tuned from, each with
-  its exact command, commit, start time, training wall time, epochs and best validation loss;
+  its exact command, commit, start time, training wall time, epochs and best validation loss; when the oldest
+  run started from a checkpoint rebuilt from a shipped policy file (quad_il.learning.unfreeze), that file's
+  hash and its own card's lineage, as the checkpoint recorded them;
 - every dataset each run trained on: its path, samples, the command that collected it (the dataset manifest's
   run_info: launch, seeds, episodes, learner policy and planner config) and a content hash (sha256 over its
   shard files in name order; --no-hash-data skips it);
@@ -92,12 +94,51 @@ def lineage(run: Path) -> list[Path]:
         if not init:
             return chain[::-1]
         ckpt = Path(init)
+        if unfrozen_origin(ckpt) is not None:
+            return chain[::-1]  # started from a shipped policy file: its card tells the rest
         if ckpt.parent.name != "checkpoints":
             raise ModelCardError(
                 f"{run / 'config.yaml'}: run.init_weights {init} is not a training run's checkpoint "
                 "(<run>/checkpoints/*.pt): its lineage cannot be described"
             )
         run = ckpt.parent.parent
+
+
+def unfrozen_origin(ckpt: Path) -> dict | None:
+    """The `unfrozen_from` record of a checkpoint rebuilt from an exported policy (quad_il.learning.unfreeze),
+    or None for any other checkpoint or a missing or unreadable file."""
+    if not ckpt.is_file():
+        return None
+    from quad_il.learning.checkpoint import CheckpointError, read_checkpoint_file
+
+    try:
+        obj = read_checkpoint_file(ckpt, "run.init_weights")
+    except CheckpointError:
+        return None
+    origin = obj.get("unfrozen_from") if isinstance(obj, dict) else None
+    return origin if isinstance(origin, dict) else None
+
+
+def _origin_section(first_run: Path) -> list[str]:
+    """The card's section for the shipped policy the oldest run started from (empty when none)."""
+    cfg = yaml.safe_load((first_run / "config.yaml").read_text()) or {}
+    init = (cfg.get("run") or {}).get("init_weights")
+    origin = unfrozen_origin(Path(init)) if init else None
+    if origin is None:
+        return []
+    out = [
+        f"### The shipped policy `{first_run}` started from",
+        "",
+        f"`{origin.get('policy_file')}`, sha256 `{origin.get('sha256')}`, rebuilt as the training checkpoint "
+        f"`{init}` (`{origin.get('command', 'python -m quad_il.learning.unfreeze')}`; BatchNorm statistics "
+        f"from `{origin.get('calib') or 'none'}`). Its own card:",
+        "",
+    ]
+    earlier = str(origin.get("model_card") or "").strip()
+    if not earlier:
+        return out + ["(not recorded: the file's directory held no MODEL.md naming its hash)", ""]
+    # one heading level down, so that the earlier card's runs nest under this section
+    return out + [("#" + ln if ln.startswith("#") else ln) for ln in earlier.splitlines()] + [""]
 
 
 def dataset_hash(path: Path) -> str:
@@ -268,6 +309,7 @@ def write_card(
         "## How it was made (oldest run first; each later run starts from the one before's weights)",
         "",
     ]
+    text += _origin_section(chain[0])
     for r in chain:
         text += _run_section(r, hash_data)
     (out / "MODEL.md").write_text("\n".join(text))
