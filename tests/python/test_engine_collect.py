@@ -69,6 +69,25 @@ def test_bad_arguments_name_what_is_wrong(tmp_path, capsys) -> None:
     assert "sim_config " in capsys.readouterr().err and not (tmp_path / "d").exists()
 
 
+def test_both_tools_record_one_run_identity(tmp_path) -> None:
+    from quad_il.engine.run_identity import collection_run_args
+    from quad_il.tools.repo import repo_root
+
+    args = collection_run_args(
+        "1-3",
+        5,
+        0,
+        30.0,
+        {"sim_config": "config/sim.yaml"},
+        {"policy": "p.ts", "policy_config": "config/policy.yaml"},
+    )
+    assert args["sim_config"] == str(repo_root() / "config" / "sim.yaml")  # relative: under the repository
+    assert args["policy"] == str(repo_root() / "p.ts")  # not a config: not checked
+    assert (args["episodes"], args["max_samples"], args["time_mode"]) == ("5", "0", "lockstep")
+    with pytest.raises(ValueError, match=r"policy_config .*nope.yaml: no such file"):
+        collection_run_args("1", 1, 0, 30.0, {}, {"policy_config": str(tmp_path / "nope.yaml")})
+
+
 @pytest.fixture(scope="module")
 def goal_line(tmp_path_factory):
     return export_goal_line_policy(tmp_path_factory.mktemp("policy") / "goal_line.ts")

@@ -32,6 +32,7 @@ from quad_il.collection import prepare
 from quad_il.collection.episodes import EpisodeLog, EpisodeOutcome, EpisodeSpec, manager_config, plan_episode
 from quad_il.engine import native
 from quad_il.engine.backends import ConfigPaths, Limits, LocalBackend
+from quad_il.engine.run_identity import collection_run_args
 from quad_il.tools import config_overlay
 from quad_il.tools.cli import HelpFormatter
 from quad_il.tools.repo import repo_root
@@ -48,11 +49,6 @@ class CollectResult:
     wall_s: float
     sim_s: float
     complete: bool
-
-
-def _config(root: Path, text: str) -> str:
-    p = Path(text)
-    return str(p if p.is_absolute() else (root / p).resolve())
 
 
 def collect(
@@ -80,29 +76,24 @@ def collect(
     root = repo_root()
     if backend not in BACKENDS:
         raise ValueError(f"backend '{backend}': one of {', '.join(BACKENDS)}")
-    cfgs = {
-        "collect_config": _config(root, collect_config),
-        "collector_config": _config(root, collector_config),
-        "sim_config": _config(root, sim_config),
-        "planner_config": _config(root, planner_config),
-        "tracker_config": _config(root, tracker_config),
-        "vehicle_config": _config(root, vehicle_config),
-    }
-    for key, path in cfgs.items():
-        if not Path(path).is_file():
-            raise ValueError(f"{key} {path}: no such file")
     # The identity collect.launch records (quad_il.collection.resume): the engine reproduces its lockstep run.
-    run_args = {
-        "seeds": seeds,
-        "episodes": str(episodes),
-        "max_samples": str(max_samples),
-        "episode_timeout_s": str(episode_timeout_s),
-        "time_mode": "lockstep",
-        "time_factor": "1.0",
-        **cfgs,
-    }
+    run_args = collection_run_args(
+        seeds,
+        episodes,
+        max_samples,
+        episode_timeout_s,
+        {
+            "collect_config": collect_config,
+            "collector_config": collector_config,
+            "sim_config": sim_config,
+            "planner_config": planner_config,
+            "tracker_config": tracker_config,
+            "vehicle_config": vehicle_config,
+        },
+    )
+    cfgs = {key: path for key, path in run_args.items() if key.endswith("_config")}
     cfg = manager_config(
-        cfgs["collect_config"],
+        run_args["collect_config"],
         {
             "output_dir": str(output_dir),
             "seeds": seeds,

@@ -35,14 +35,14 @@ from quad_il.collection import prepare
 from quad_il.collection.episodes import EpisodeLog, EpisodeOutcome, manager_config, plan_episode
 from quad_il.engine import native
 from quad_il.engine.policy_fleet import fly_policy
+from quad_il.engine.run_identity import absolute, collection_run_args
 from quad_il.tools import config_overlay
 from quad_il.tools.cli import HelpFormatter
 from quad_il.tools.repo import repo_root
 
 
 def _abs(text: str) -> Path:
-    p = Path(text)
-    return p if p.is_absolute() else repo_root() / p
+    return Path(absolute(text))
 
 
 def run_round(
@@ -113,25 +113,21 @@ def run_round(
     )
     # The run's identity (quad_il.collection.resume, with the learner and its config): --resume continues only
     # the same round, recovering a dataset a killed round left and cutting its unfinished episode's records.
-    run_args = {
-        "seeds": seeds,
-        "episodes": str(episodes),
-        "max_samples": "0",
-        "episode_timeout_s": str(episode_timeout_s),
-        "time_mode": "lockstep",
-        "time_factor": "1.0",
-        "collect_config": str(_abs(collect_config)),
-        "collector_config": str(_abs(collector_config)),
-        "sim_config": str(_abs(sim_config)),
-        "planner_config": str(_abs(planner_config)),
-        "tracker_config": str(_abs(tracker_config)),
-        "vehicle_config": str(_abs(vehicle_config)),
-        "policy": str(_abs(policy)),
-        "policy_config": str(_abs(policy_config)),
-    }
-    for key, path in run_args.items():
-        if key.endswith("_config") and not Path(path).is_file():
-            raise ValueError(f"{key} {path}: no such file")  # before OUT is created
+    run_args = collection_run_args(
+        seeds,
+        episodes,
+        0,
+        episode_timeout_s,
+        {
+            "collect_config": collect_config,
+            "collector_config": collector_config,
+            "sim_config": sim_config,
+            "planner_config": planner_config,
+            "tracker_config": tracker_config,
+            "vehicle_config": vehicle_config,
+        },
+        {"policy": policy, "policy_config": policy_config},
+    )  # a missing config is refused here, before OUT is created
     out = prepare.prepare_output_dir(
         output_dir, repo_root(), resume=resume, run_args=run_args, tool="quad_il.engine.dagger"
     )
