@@ -93,6 +93,7 @@ RULES: list[tuple[str, str, Callable[[Path], None]]] = [
     ("config/planner.yaml", "c++ planner", cpp_loader("planner")),
     ("config/policy*.yaml", "policy", load_policy_config),
     ("config/sim.yaml", "c++ sim", cpp_loader("sim")),
+    ("config/sim_*.yaml", "c++ sim (overlay of config/sim.yaml)", cpp_loader("sim")),
     ("tests/rostest/*.yaml", "c++ sim", cpp_loader("sim")),
     ("config/tracker.yaml", "c++ tracker", cpp_loader("tracker")),
     ("config/train.yaml", "train", lambda p: load_train_config([p])),
