@@ -221,22 +221,23 @@ def _calibrate(
 
 
 def calibration_frames(dataset: Path, policy: Policy, count: int) -> torch.Tensor:
-    """The first `count` depth frames of a shard dataset (its first shards), preprocessed as training does."""
+    """About `count` depth frames of a shard dataset, evenly spread over its shards and over the records of
+    each (consecutive frames of one flight are alike), preprocessed as training does."""
     from quad_il.data import DatasetError
     from quad_il.data.postprocess import iter_shard_arrays
 
+    shards = max(1, len(list(Path(dataset).glob("*.qdr"))))
+    per_shard = max(1, -(-count // shards))
     frames: list[torch.Tensor] = []
-    n = 0
     try:
         for _name, fixed in iter_shard_arrays(dataset):
-            depth = torch.from_numpy(np.asarray(fixed.depth_m[: count - n], dtype=np.float32))
+            n = len(fixed.depth_m)
+            pick = np.unique(np.linspace(0, n - 1, min(per_shard, n)).round().astype(np.int64))
+            depth = torch.from_numpy(np.asarray(fixed.depth_m[pick], dtype=np.float32))
             frames.append(policy.depth_pre(depth))
-            n += len(depth)
-            if n >= count:
-                break
     except (OSError, ValueError, DatasetError) as e:
         raise UnfreezeError(f"--calib {dataset}: cannot read depth frames: {e}") from None
-    if n == 0:
+    if not frames:
         raise UnfreezeError(f"--calib {dataset}: no depth frame to calibrate with")
     return torch.cat(frames)
 
@@ -246,7 +247,7 @@ def recover_checkpoint(
     config_file: Path,
     out: Path,
     calib: Path | None = None,
-    calib_frames: int = 512,
+    calib_frames: int = 1024,
     tol: float = 1e-4,
     command: str = "",
 ) -> dict[str, Any]:
@@ -330,7 +331,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--calib", type=Path, help="a shard dataset whose first frames set the BatchNorm statistics"
     )
-    ap.add_argument("--calib-frames", type=int, default=512, help="how many frames --calib reads")
+    ap.add_argument(
+        "--calib-frames", type=int, default=1024, help="about how many frames --calib reads (spread evenly)"
+    )
     args = ap.parse_args(argv)
     try:
         command = "python -m quad_il.learning.unfreeze " + shlex.join(sys.argv[1:] if argv is None else argv)
