@@ -140,3 +140,27 @@ def test_the_shipped_policy_unfreezes_with_its_training_config(tmp_path: Path) -
     model = REPO / "models" / "quad_il_policy"
     summary = recover_checkpoint(model / "policy.ts", model / "train_config.yaml", tmp_path / "best.pt")
     assert summary["max_abs_diff"] <= 1e-4
+
+
+def test_calibration_frames_are_spread_over_every_shard(tmp_path: Path) -> None:
+    from quad_il.data.postprocess import iter_shard_arrays
+    from quad_il.data.synthetic import find_collector_tool, write_synthetic_dataset
+    from quad_il.learning.unfreeze import calibration_frames
+
+    try:
+        find_collector_tool("write_synthetic_dataset")
+    except FileNotFoundError as e:
+        pytest.skip(f"cpp_data_collector not built: {e}")
+    data = write_synthetic_dataset(
+        tmp_path / "d", seed=2, records=24, width=40, height=30, records_per_episode=8, shard_size_mb=0.05
+    )
+    cfg, _ = _config(tmp_path)
+    policy = Policy(cfg.model, 10, 1.5)
+    shards = [fixed.depth_m for _name, fixed in iter_shard_arrays(data)]
+    assert len(shards) >= 3
+    frames = calibration_frames(data, policy, 2 * len(shards))
+    # two frames of each shard, its first and its last, in shard order
+    want = torch.cat(
+        [policy.depth_pre(torch.from_numpy(d[[0, len(d) - 1]].astype("float32"))) for d in shards]
+    )
+    assert torch.equal(frames, want)

@@ -273,8 +273,9 @@ def recover_checkpoint(
         )
     output = meta.get("output", {})
     num_ctrl_pts, horizon_s = int(output["num_ctrl_pts"]), float(output["horizon_s"])
-    torch.manual_seed(cfg.run.seed)
-    policy = Policy(cfg.model, num_ctrl_pts, horizon_s)
+    with torch.random.fork_rng():  # the unused rows' initialisation is seeded; the caller's RNG untouched
+        torch.manual_seed(cfg.run.seed)
+        policy = Policy(cfg.model, num_ctrl_pts, horizon_s)
     depth_x = calibration_frames(calib, policy, calib_frames) if calib is not None else None
     unfreeze(module, policy, cfg.model, depth_x)
     policy.eval()
