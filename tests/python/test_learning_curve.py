@@ -104,3 +104,51 @@ def test_unreadable_spec(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> 
     bad.write_text("points: [a: b: c]\n")
     assert main([str(bad)]) == 2
     assert "not YAML" in capsys.readouterr().err
+
+
+def test_recorded_counts_keep_a_point_when_its_directory_is_gone(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from quad_il.evaluation.learning_curve import episodes_digest
+
+    _run(tmp_path / "bc", ["goal_reached"] * 3 + ["collision"] * 7)
+    _run(tmp_path / "r1", ["goal_reached"] * 6 + ["collision"] * 2 + ["timeout"] * 2)
+    digest = episodes_digest(_specs(10))
+    spec = _spec(
+        tmp_path,
+        [
+            {"name": "bc", "samples": 1000, "round": 0, "eval": "bc"},
+            {"name": "r1", "samples": 5000, "round": 1, "eval": "r1"},
+        ],
+    )
+    assert main([str(spec), "--print-recorded"]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    assert (
+        printed[1]
+        == f"r1: recorded: {{episodes: 10, goal_reached: 6, collision: 2, episodes_sha256: {digest}}}"
+    )
+    recorded = {
+        "episodes": 10,
+        "goal_reached": 6,
+        "collision": 2,
+        "episodes_sha256": digest,
+        "note": "old box",
+    }
+    points = [
+        {"name": "bc", "samples": 1000, "round": 0, "eval": "bc"},
+        {"name": "r1", "samples": 5000, "round": 1, "eval": "r1", "recorded": recorded},
+    ]
+    assert [p.successes for p in load_points(_spec(tmp_path, points))[1]] == [3, 6]  # checked: they agree
+    (tmp_path / "r1" / "cpp.jsonl").unlink()
+    (tmp_path / "r1" / "episodes.json").unlink()
+    (tmp_path / "r1").rmdir()
+    assert [p.successes for p in load_points(_spec(tmp_path, points))[1]] == [3, 6]  # from the record
+    # a record of other episodes, or counts the directory contradicts, are refused
+    other = {**recorded, "episodes_sha256": episodes_digest(_specs(10, seed0=31000))}
+    with pytest.raises(LearningCurveError, match="every point must be evaluated on the same episodes"):
+        load_points(_spec(tmp_path, [points[0], {**points[1], "recorded": other}]))
+    wrong = {**recorded, "goal_reached": 4}
+    with pytest.raises(LearningCurveError, match="goal_reached 4 recorded, 3 in the directory"):
+        load_points(_spec(tmp_path, [{**points[0], "recorded": wrong}]))
+    with pytest.raises(LearningCurveError, match="'episodes_sha256' must be 64 lowercase hex digits"):
+        load_points(_spec(tmp_path, [{**points[1], "recorded": {**recorded, "episodes_sha256": "x"}}]))

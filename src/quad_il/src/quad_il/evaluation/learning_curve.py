@@ -16,17 +16,27 @@ SPEC is a YAML file:
                                          #   policy as a point of its own (same eval)
         eval: results/priv_h15_dev_bare  # a complete run_eval output directory (relative: to SPEC's
                                          #   directory first, then the working directory)
+        recorded:                        # optional: the evaluation's counts, kept in the SPEC so that the
+          episodes: 100                  #   curve survives its directory (results/ is not in the
+          goal_reached: 35               #   repository); used when the directory is missing, checked
+          collision: 60                  #   against it when it is there (--print-recorded prints these)
+          episodes_sha256: 9c0e...       #   sha256 of the evaluation's episodes (episodes_digest)
+          note: flown on machine X       #   optional free text
 
 Each point's success is the share of the run's episodes whose outcome is goal_reached, with its 95 % Wilson
-interval. Every point must have been evaluated on the same episodes (equal episodes.json), so the curve
-compares like with like. Prints a Markdown table (also written with --table); --out draws two panels: success
-against training samples (log scale, one line per series) and against the DAgger round. Exit status 2 on a bad
-SPEC or an incomplete evaluation, naming the point and what is wrong.
+interval. Every point must have been evaluated on the same episodes (equal episodes.json, or equal
+episodes_sha256 for a recorded point), so the curve compares like with like. Prints a Markdown table (also
+written with --table); --out draws two panels: success against training samples (log scale, one line per
+series) and against the DAgger round. Exit status 2 on a bad SPEC or an incomplete evaluation, naming the
+point and what is wrong.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import hashlib
+import json
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -38,7 +48,8 @@ from quad_il.evaluation.compare import CompareError, load_run
 from quad_il.evaluation.stats import format_rate, wilson_interval
 from quad_il.tools.cli import HelpFormatter
 
-_POINT_KEYS = {"name", "samples", "round", "series", "eval"}
+_POINT_KEYS = {"name", "samples", "round", "series", "eval", "recorded"}
+_RECORDED_KEYS = {"episodes", "goal_reached", "collision", "episodes_sha256", "note"}
 
 
 class LearningCurveError(ValueError):
@@ -68,6 +79,37 @@ class PointSpec:
     round: int
     series: str
     eval_dir: Path
+    recorded: dict | None
+
+
+def episodes_digest(episodes: list) -> str:
+    """sha256 of an evaluation's episodes (the EpisodeSpec list of its episodes.json), independent of the
+    file's formatting."""
+    rows = [dataclasses.asdict(e) for e in episodes]
+    return hashlib.sha256(json.dumps(rows, sort_keys=True).encode()).hexdigest()
+
+
+def _parse_recorded(r: object, where: str) -> dict:
+    if not isinstance(r, dict):
+        raise LearningCurveError(
+            f"{where}: 'recorded' must be a mapping ({', '.join(sorted(_RECORDED_KEYS))})"
+        )
+    bad = set(r) - _RECORDED_KEYS
+    if bad:
+        raise LearningCurveError(f"{where}: recorded: unknown key(s) {sorted(bad)}")
+    where = f"{where}: recorded"
+    out = {
+        "episodes": _int_key(r, "episodes", where, 1),
+        "goal_reached": _int_key(r, "goal_reached", where, 0),
+        "collision": _int_key(r, "collision", where, 0),
+    }
+    if out["goal_reached"] + out["collision"] > out["episodes"]:
+        raise LearningCurveError(f"{where}: goal_reached + collision > episodes")
+    digest = r.get("episodes_sha256")
+    if not (isinstance(digest, str) and len(digest) == 64 and all(c in "0123456789abcdef" for c in digest)):
+        raise LearningCurveError(f"{where}: 'episodes_sha256' must be 64 lowercase hex digits")
+    out["episodes_sha256"] = digest
+    return out
 
 
 @dataclass(frozen=True)
@@ -124,7 +166,8 @@ def parse_spec(spec_path: str | Path) -> tuple[str, list[PointSpec]]:
             raise LearningCurveError(f"{where}: 'series' must be a non-empty string")
         if not isinstance(p.get("eval"), str):
             raise LearningCurveError(f"{where}: 'eval' must name a run_eval output directory")
-        points.append(PointSpec(name, samples, rnd, series, _resolve(spec_path.parent, p["eval"])))
+        recorded = _parse_recorded(p["recorded"], where) if "recorded" in p else None
+        points.append(PointSpec(name, samples, rnd, series, _resolve(spec_path.parent, p["eval"]), recorded))
     title = tree.get("title", "")
     return (title if isinstance(title, str) else str(title)), points
 
@@ -133,26 +176,66 @@ def load_points(spec_path: str | Path, controller: str = "cpp") -> tuple[str, li
     """The SPEC's title and its points with their outcome counts."""
     title, specs = parse_spec(spec_path)
     points: list[CurvePoint] = []
-    reference: tuple[Path, list] | None = None
+    reference: tuple[Path, str] | None = None
     for p in specs:
         where = f"{spec_path}: point {p.name!r}"
-        try:
-            episodes, results = load_run(p.eval_dir, controller)
-        except CompareError as e:
-            raise LearningCurveError(f"{where}: {e}") from None
+        counts = read_counts(p, controller, where)
         if reference is None:
-            reference = (p.eval_dir, episodes)
-        elif episodes != reference[1]:
+            reference = (p.eval_dir, counts["episodes_sha256"])
+        elif counts["episodes_sha256"] != reference[1]:
             raise LearningCurveError(
                 f"{where}: {p.eval_dir} holds other episodes than {reference[0]} (episodes.json differ): "
                 "every point must be evaluated on the same episodes"
             )
-        outcomes = [r.outcome for r in results.values()]
-        if not outcomes:
-            raise LearningCurveError(f"{where}: {p.eval_dir} holds no episodes")
-        n_ok, n_coll = outcomes.count("goal_reached"), outcomes.count("collision")
-        points.append(CurvePoint(**vars(p), episodes=len(outcomes), successes=n_ok, collisions=n_coll))
+        points.append(
+            CurvePoint(
+                **vars(p),
+                episodes=counts["episodes"],
+                successes=counts["goal_reached"],
+                collisions=counts["collision"],
+            )
+        )
     return title, points
+
+
+def read_counts(p: PointSpec, controller: str, where: str) -> dict:
+    """The point's counts (episodes, goal_reached, collision, episodes_sha256): from its evaluation
+    directory, checked against its recorded counts if it has them; from the recorded counts alone when the
+    directory is gone."""
+    if p.recorded is not None and not p.eval_dir.exists():
+        return p.recorded
+    try:
+        episodes, results = load_run(p.eval_dir, controller)
+    except CompareError as e:
+        raise LearningCurveError(f"{where}: {e}") from None
+    outcomes = [r.outcome for r in results.values()]
+    if not outcomes:
+        raise LearningCurveError(f"{where}: {p.eval_dir} holds no episodes")
+    counts = {
+        "episodes": len(outcomes),
+        "goal_reached": outcomes.count("goal_reached"),
+        "collision": outcomes.count("collision"),
+        "episodes_sha256": episodes_digest(episodes),
+    }
+    if p.recorded is not None:
+        differ = [k for k in counts if counts[k] != p.recorded[k]]
+        if differ:
+            got = ", ".join(f"{k} {p.recorded[k]} recorded, {counts[k]} in the directory" for k in differ)
+            raise LearningCurveError(f"{where}: {p.eval_dir} does not match its recorded counts ({got})")
+    return counts
+
+
+def recorded_yaml(spec_path: str | Path, controller: str = "cpp") -> str:
+    """Each point's `recorded:` mapping as read from its evaluation directory (to paste into the SPEC)."""
+    _, specs = parse_spec(spec_path)
+    lines = []
+    for p in specs:
+        c = read_counts(p, controller, f"{spec_path}: point {p.name!r}")
+        lines.append(
+            f"{p.name}: recorded: {{episodes: {c['episodes']}, goal_reached: {c['goal_reached']}, "
+            f"collision: {c['collision']}, episodes_sha256: {c['episodes_sha256']}}}"
+        )
+    return "\n".join(lines) + "\n"
 
 
 def table(points: list[CurvePoint]) -> str:
@@ -232,7 +315,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--out", default=None, help="write the figure (PNG) here")
     ap.add_argument("--table", default=None, help="also write the Markdown table here")
     ap.add_argument("--controller", default="cpp", help="the controller whose results count (cpp, py)")
+    ap.add_argument(
+        "--print-recorded",
+        action="store_true",
+        help="print each point's recorded counts (for the SPEC) and exit",
+    )
     a = ap.parse_args(argv)
+    if a.print_recorded:
+        try:
+            print(recorded_yaml(a.spec, a.controller), end="")
+        except LearningCurveError as e:
+            print(f"learning_curve: error: {e}", file=sys.stderr)
+            return 2
+        return 0
     try:
         title, points = load_points(a.spec, a.controller)
     except LearningCurveError as e:
