@@ -196,3 +196,27 @@ def test_the_defaults_fly_the_shipped_policy_and_its_card_matches() -> None:
     _, meta = load_exported(shipped / "policy.ts")
     cfg = yaml.safe_load((shipped / "train_config.yaml").read_text())
     assert meta["output"]["horizon_s"] == cfg["data"]["shards"]["horizon_s"]
+
+
+def test_the_commit_that_shipped_a_file_is_found_by_its_hash(tmp_path: Path, monkeypatch) -> None:
+    import subprocess
+
+    from quad_il.evaluation.model_card import _commit_naming
+
+    sha = "cd" * 32
+    monkeypatch.chdir(tmp_path)
+    git = ["git", "-c", "user.name=t", "-c", "user.email=t@t"]
+    subprocess.run([*git, "init", "-q"], check=True)
+    (tmp_path / "MODEL.md").write_text("first\n")
+    subprocess.run([*git, "add", "MODEL.md"], check=True)
+    subprocess.run([*git, "commit", "-qm", "a"], check=True)
+    (tmp_path / "MODEL.md").write_text(f"`policy.ts`: sha256 `{sha}`\n")
+    subprocess.run([*git, "commit", "-qam", "ship"], check=True)
+    shipped = subprocess.run(
+        ["git", "log", "-1", "--format=%h"], capture_output=True, text=True
+    ).stdout.strip()
+    (tmp_path / "MODEL.md").write_text("a later card\n")
+    subprocess.run([*git, "commit", "-qam", "next"], check=True)
+    assert _commit_naming(sha) == shipped  # the oldest commit touching the hash: the one that shipped it
+    assert _commit_naming("ef" * 32) == ""
+    assert _commit_naming("short") == ""

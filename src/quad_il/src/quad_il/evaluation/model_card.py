@@ -29,6 +29,7 @@ import hashlib
 import json
 import shlex
 import shutil
+import subprocess
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -119,6 +120,25 @@ def unfrozen_origin(ckpt: Path) -> dict | None:
     return origin if isinstance(origin, dict) else None
 
 
+def _commit_naming(sha256: str) -> str:
+    """The oldest commit whose change to a MODEL.md adds or removes `sha256` (the commit that shipped that
+    file), or "" when git cannot tell (no repository, no such commit)."""
+    if len(sha256) != 64:
+        return ""
+    try:
+        res = subprocess.run(
+            ["git", "log", "--format=%h", f"-S{sha256}", "--", "*MODEL.md"],
+            capture_output=True,
+            text=True,
+            check=False,
+            timeout=60,
+        )
+    except (OSError, subprocess.SubprocessError):
+        return ""
+    commits = res.stdout.split() if res.returncode == 0 else []
+    return commits[-1] if commits else ""
+
+
 def _origin_section(first_run: Path) -> list[str]:
     """The card's section for the shipped policy the oldest run started from (empty when none)."""
     cfg = yaml.safe_load((first_run / "config.yaml").read_text()) or {}
@@ -126,10 +146,13 @@ def _origin_section(first_run: Path) -> list[str]:
     origin = unfrozen_origin(Path(init)) if init else None
     if origin is None:
         return []
+    shipped_in = _commit_naming(str(origin.get("sha256", "")))
     out = [
         f"### The shipped policy `{first_run}` started from",
         "",
-        f"`{origin.get('policy_file')}`, sha256 `{origin.get('sha256')}`, rebuilt as the training checkpoint "
+        f"`{origin.get('policy_file')}`, sha256 `{origin.get('sha256')}`"
+        + (f" (shipped in commit `{shipped_in}`)" if shipped_in else "")
+        + ", rebuilt as the training checkpoint "
         f"`{init}` (`{origin.get('command', 'python -m quad_il.learning.unfreeze')}`; BatchNorm statistics "
         f"from `{origin.get('calib') or 'none'}`). Its own card:",
         "",
