@@ -67,3 +67,37 @@ def test_main_prints_and_writes_the_markdown_summary(
     assert "| A | 0 | 0 | 4 |" in text and "| B | 2 | 1 | 1 |" in text
     assert "Goals gained in B: 2; lost: 0; exact McNemar p = 0.5." in text
     assert "| 3 | 9003 | timeout | collision |" in text
+
+
+def test_runs_flown_on_different_cpus_are_flagged(tmp_path: Path) -> None:
+    from quad_il.evaluation.compare import markdown
+    from quad_il.evaluation.pin import RunPin, write_pin
+
+    def pinned(d: Path, cpu: str) -> Path:
+        _run(d, ["goal_reached"] * 4, [0, 0, 0, 0])
+        args = (
+            "bare",
+            "",
+            "a" * 64,
+            "/p",
+            "b" * 64,
+            "/c",
+            "c" * 64,
+            "/s",
+            "d" * 64,
+            "e" * 64,
+            None,
+            "f",
+            False,
+        )
+        write_pin(d, RunPin(*args, "engine", cpu))
+        return d
+
+    a, b = pinned(tmp_path / "a", "X; avx2 fma"), pinned(tmp_path / "b", "Y; avx512f avx2 fma")
+    c = compare(a, b)
+    assert c.cpus == ("X; avx2 fma", "Y; avx512f avx2 fma")
+    assert "**Flown on different CPUs** (A: X; avx2 fma; B: Y; avx512f avx2 fma)" in markdown(c, "a", "b")
+    same = pinned(tmp_path / "c", "X; avx2 fma")
+    assert "different CPUs" not in markdown(compare(a, same), "a", "c")
+    unpinned = _run(tmp_path / "d", ["goal_reached"] * 4, [0, 0, 0, 0])  # no pin: nothing to say
+    assert "different CPUs" not in markdown(compare(a, unpinned), "a", "d")

@@ -13,7 +13,7 @@ import yaml
 
 from quad_il.evaluation import run_eval
 from quad_il.evaluation.episodes import EpisodeResult, append_result, read_episodes, read_results
-from quad_il.evaluation.pin import RunPin, read_pin
+from quad_il.evaluation.pin import RunPin, cpu_signature, read_pin
 from quad_il.evaluation.sets import EvalSetError, get_eval_set, load_eval_sets, world_density
 from quad_il.evaluation.tiers import TierError, apply_tier, render_tier_config
 from quad_il.evaluation.tiers import main as tiers_main
@@ -156,8 +156,9 @@ def test_a_run_records_its_pin_and_the_report_prints_it(
     assert load_policy_config(out / "policy_config.yaml").safety.enabled is False  # what the nodes read
     assert pin.sim_config_sha256 == sha256_of(ROOT / "config" / "sim.yaml")
     assert len(pin.commit) == 40 or pin.commit == "unknown"
+    assert pin.cpu == cpu_signature() and pin.cpu
     report = (out / "report.md").read_text()
-    for value in (pin.policy_sha256, pin.policy_config_sha256, pin.sim_config_sha256, pin.commit):
+    for value in (pin.policy_sha256, pin.policy_config_sha256, pin.sim_config_sha256, pin.commit, pin.cpu):
         assert value in report
     assert "tier **`bare`**" in report
     assert "| policy, C++ (LibTorch) | bare | 2 | 100 % [34-100] | 0 % [0-66] | 0 % [0-66] |" in report
@@ -297,3 +298,43 @@ def test_a_set_fixes_the_episodes_and_conflicts_with_seeds(
     )
     assert run_eval.main(["--set", "nope", "--sets-file", str(sets), "--out", str(tmp_path / "o3")]) == 1
     assert "no evaluation set 'nope'" in capsys.readouterr().err
+
+
+def test_the_pin_records_the_cpu_and_an_old_pin_without_it_matches_any() -> None:
+    import dataclasses
+    import json
+
+    from quad_il.evaluation.pin import differences
+
+    info = "processor : 0\nmodel name : Some CPU\nflags : fpu sse4_2 avx2 fma\n\nprocessor : 1\n"
+    assert cpu_signature(info) == "Some CPU; avx2 fma sse4_2"
+    assert (
+        cpu_signature("model name : Other\nflags : fpu avx512f avx2 amx_tile\n")
+        == "Other; amx_tile avx512f avx2"
+    )
+    pin = RunPin(
+        "bare",
+        "dev",
+        "a" * 64,
+        "/p.ts",
+        "b" * 64,
+        "/c.yaml",
+        "c" * 64,
+        "/s.yaml",
+        "d" * 64,
+        "e" * 64,
+        None,
+        "f" * 40,
+        False,
+        "engine",
+        "Some CPU; avx2 fma sse4_2",
+    )
+    assert RunPin.from_json(pin.to_json(), "pin") == pin  # round trip
+    old = json.loads(pin.to_json())
+    del old["cpu"]  # written before the CPU was recorded
+    old_pin = RunPin.from_json(json.dumps(old), "old pin")
+    assert old_pin.cpu == "" and differences(old_pin, pin, True) == []
+    other = dataclasses.replace(pin, cpu="Other; amx_tile avx512f avx2")
+    assert differences(pin, other, True) == [
+        "cpu: run has 'Some CPU; avx2 fma sse4_2', this invocation 'Other; amx_tile avx512f avx2'"
+    ]

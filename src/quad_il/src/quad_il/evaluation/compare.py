@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from quad_il.evaluation.episodes import EpisodeResult, read_episodes, read_results
+from quad_il.evaluation.pin import read_pin
 from quad_il.evaluation.stats import mcnemar_exact_p
 from quad_il.tools.cli import HelpFormatter
 
@@ -42,6 +43,7 @@ class Comparison:
     goals_gained: int  # reached in B only
     goals_lost: int  # reached in A only
     mcnemar_p: float
+    cpus: tuple[str, str] = ("", "")  # the runs' pinned CPUs ('' = not recorded)
 
 
 def load_run(run: Path, controller: str) -> tuple[list, dict[int, EpisodeResult]]:
@@ -97,7 +99,16 @@ def compare(run_a: str | Path, run_b: str | Path, controller: str = "cpp") -> Co
         gained,
         lost,
         mcnemar_exact_p(gained, lost),
+        (_pinned_cpu(a_dir), _pinned_cpu(b_dir)),
     )
+
+
+def _pinned_cpu(run: Path) -> str:
+    try:
+        pin = read_pin(run)
+    except ValueError:
+        return ""
+    return pin.cpu if pin is not None else ""
 
 
 def markdown(c: Comparison, name_a: str, name_b: str) -> str:
@@ -113,6 +124,11 @@ def markdown(c: Comparison, name_a: str, name_b: str) -> str:
         f"- Flown identically (same outcome and trajectory): {c.identical} of {c.episodes}.",
         f"- Goals gained in B: {c.goals_gained}; lost: {c.goals_lost}; exact McNemar p = {c.mcnemar_p:.3g}.",
     ]
+    if all(c.cpus) and c.cpus[0] != c.cpus[1]:
+        lines.append(
+            f"- **Flown on different CPUs** (A: {c.cpus[0]}; B: {c.cpus[1]}): a closed loop rounds "
+            "differently on another instruction set, so the episodes do not pair; only the rates compare."
+        )
     if c.changed:
         lines += ["", "| episode | world seed | A | B |", "|---|---|---|---|"]
         lines += [f"| {i} | {seed} | {oa} | {ob} |" for i, seed, oa, ob in c.changed]

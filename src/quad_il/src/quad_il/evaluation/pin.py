@@ -2,10 +2,12 @@
 
 OUT/pin.json records the sha256 of the policy file, of the policy node config the nodes read (the tier's
 complete config, written to OUT/policy_config.yaml), of the simulator config and the vehicle file it names,
-of the expert's planner config, the tier, the evaluation set and the commit. `run_eval` resuming into OUT with
-any of them different stops with a message naming each difference (`--force-new` moves the old run aside and
-starts over). The policy fields of an expert-only run are empty; a later run may fill them in as long as no
-policy episode was flown.
+of the expert's planner config, the tier, the evaluation set, the commit and the CPU (`cpu_signature`: a
+closed loop flown on a CPU of another instruction set takes other trajectories, because LibTorch and the
+libraries' SIMD paths round differently). `run_eval` resuming into OUT with any of them different (a pin
+without the CPU, written before it was recorded, matches any) stops with a message naming each difference
+(`--force-new` moves the old run aside and starts over). The policy fields of an expert-only run are empty;
+a later run may fill them in as long as no policy episode was flown.
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ class RunPin:
     commit: str
     dirty: bool | None
     backend: str = "ros"  # where the episodes were flown (ros | engine; pins written before: ros)
+    cpu: str = ""  # cpu_signature() of the machine ('' in pins written before it was recorded: unknown)
 
     # Fields that must be equal on resume (paths may move; the hashes say whether the content did).
     CHECKED = (
@@ -51,6 +54,7 @@ class RunPin:
         "density",
         "commit",
         "backend",
+        "cpu",
     )
     # What only the policy controllers use: all empty when an invocation flies the expert alone.
     POLICY_FIELDS = ("tier", "policy_sha256", "policy_path", "policy_config_sha256", "policy_config_base")
@@ -71,6 +75,7 @@ class RunPin:
             raise ValueError(f"{source}: not a format-{PIN_FORMAT} evaluation pin")
         names = {f.name for f in dataclasses.fields(cls)}
         tree.setdefault("backend", "ros")  # pins written before the engine existed
+        tree.setdefault("cpu", "")  # pins written before the CPU was recorded
         if set(tree) != names:
             raise ValueError(f"{source}: pin keys {sorted(set(tree) ^ names)} missing or unknown")
         return cls(**tree)
@@ -86,6 +91,8 @@ def differences(old: RunPin, new: RunPin, policy_flown: bool) -> list[str]:
     out = []
     for name in RunPin.CHECKED:
         a, b = getattr(old, name), getattr(new, name)
+        if name == "cpu" and not (a and b):
+            continue  # a pin written before the CPU was recorded: unknown, not different
         if a != b and name not in skip:
             out.append(f"{name}: run has {a!r}, this invocation {b!r}")
     return out
@@ -96,6 +103,33 @@ def merge(old: RunPin, new: RunPin) -> RunPin:
     if new.flies_policy():
         return new
     return dataclasses.replace(new, **{name: getattr(old, name) for name in RunPin.POLICY_FIELDS})
+
+
+VECTOR_FLAGS = ("amx_tile", "avx512f", "avx2", "fma", "sse4_2")
+
+
+def cpu_signature(cpuinfo: str | None = None) -> str:
+    """The CPU's model name and the vector instruction sets that decide how its float kernels round, e.g.
+    'Intel(R) Xeon(R) Processor; amx_tile avx512f avx2 fma sse4_2' (from /proc/cpuinfo, or the text given);
+    the machine type alone where /proc/cpuinfo cannot be read."""
+    if cpuinfo is None:
+        try:
+            cpuinfo = Path("/proc/cpuinfo").read_text()
+        except OSError:
+            cpuinfo = ""
+    model, flags = "", set()
+    for line in cpuinfo.splitlines():
+        key, _, value = line.partition(":")
+        key = key.strip()
+        if key == "model name" and not model:
+            model = value.strip()
+        elif key == "flags" and not flags:
+            flags = set(value.split())
+    if not model and not flags:
+        import platform
+
+        return platform.machine() or "unknown"
+    return f"{model or 'unknown model'}; " + " ".join(f for f in VECTOR_FLAGS if f in flags)
 
 
 def read_pin(out: Path) -> RunPin | None:

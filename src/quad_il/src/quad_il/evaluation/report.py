@@ -75,6 +75,7 @@ def pin_lines(pin: RunPin | None) -> list[str]:
         ("expert planner config", f"sha256 `{pin.planner_config_sha256}`"),
         ("box density", "the simulator config's" if pin.density is None else f"{pin.density:g} per 100 m^2"),
         ("commit", f"`{pin.commit}`{dirty}"),
+        ("CPU", pin.cpu or "- (not recorded)"),
     ]
     return ["| pinned | value |", "|---|---|", *[f"| {k} | {v} |" for k, v in rows], ""]
 

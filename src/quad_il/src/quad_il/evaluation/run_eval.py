@@ -53,7 +53,7 @@ from quad_il.evaluation.episodes import (
     read_results,
     write_episodes,
 )
-from quad_il.evaluation.pin import RunPin, differences, merge, read_pin, write_pin
+from quad_il.evaluation.pin import RunPin, cpu_signature, differences, merge, read_pin, write_pin
 from quad_il.evaluation.sets import EvalSetError, get_eval_set, world_density
 from quad_il.evaluation.tiers import DEFAULT_TIER, TIERS, TierError, render_tier_config
 from quad_il.tools.binaries import BinaryNotFound, find_binary
@@ -455,6 +455,7 @@ def make_pin(args: argparse.Namespace, policy_controllers: bool, tier_text: str)
         commit=commit["commit"],
         dirty=commit["dirty"],
         backend=args.backend,
+        cpu=cpu_signature(),
     )
 
 
