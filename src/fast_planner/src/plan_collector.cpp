@@ -105,9 +105,42 @@ void PlanCollector::OnPlan(const PlanRecord& plan) {
     if (warn_) warn_(CollectorWarning::kNotRecorded, buf);
     return;
   }
+  if (context_.episode_id < 0) {
+    if (held_.size() >= kMaxHeldPlans) {
+      ++not_recorded_;
+      if (warn_) {
+        warn_(CollectorWarning::kNotRecorded,
+              "plan not recorded (no episode yet: nothing on sim/status, and " +
+                  std::to_string(kMaxHeldPlans) + " plans are already held); " +
+                  std::to_string(not_recorded_) + " so far");
+      }
+      return;
+    }
+    HeldPlan h;
+    FillPlanRecord(plan, context_, &h.record);
+    h.depth = plan.depth;  // keeps the pixels h.record.depth points into
+    held_.push_back(std::move(h));
+    if (warn_) {
+      warn_(CollectorWarning::kHeld,
+            "plan held until the episode is known (sim/status); " + std::to_string(held_.size()) + " held");
+    }
+    return;
+  }
   const auto t0 = std::chrono::steady_clock::now();
   FillPlanRecord(plan, context_, &record_);
   Write(record_, t0);
+}
+
+void PlanCollector::SetEpisode(int64_t episode_id, uint64_t world_seed) {
+  context_.episode_id = episode_id;
+  context_.world_seed = world_seed;
+  if (episode_id < 0 || held_.empty()) return;
+  for (HeldPlan& h : held_) {
+    h.record.episode_id = episode_id;
+    h.record.world_seed = world_seed;
+    Write(h.record, std::chrono::steady_clock::now());
+  }
+  held_.clear();
 }
 
 void PlanCollector::Write(const cpp_data_collector::PlanRecord& record) {
@@ -153,10 +186,18 @@ std::string PlanCollector::StatsLine() const {
 }
 
 PlanCollector::Finalized PlanCollector::Finalize() {
-  if (!writer_) return {true, StatsLine()};
+  // Plans still held never learnt their episode: a record without one would not be keyed, so none is written.
+  std::string unkeyed;
+  if (!held_.empty()) {
+    not_recorded_ += held_.size();
+    unkeyed = std::to_string(held_.size()) +
+              " plan(s) not recorded: the episode was never known (nothing on sim/status); ";
+    held_.clear();
+  }
+  if (!writer_) return {true, unkeyed + StatsLine()};
   const cpp_data_collector::FinalizeResult f = writer_->Finalize();
-  if (f.ok) return {true, "dataset finalised: " + StatsLine()};
-  return {false, "dataset finalised with an error (" + f.error + "): " + StatsLine()};
+  if (f.ok) return {true, unkeyed + "dataset finalised: " + StatsLine()};
+  return {false, unkeyed + "dataset finalised with an error (" + f.error + "): " + StatsLine()};
 }
 
 std::string PlanCollector::RecordCostText() const {

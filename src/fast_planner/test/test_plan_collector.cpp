@@ -147,6 +147,67 @@ TEST_F(PlanCollectorTest, WhatItRecordsReadsBackAsThePlan) {
   EXPECT_EQ(d.plan_status_text(), "success");
 }
 
+// The planner node hears sim/status on its own connection: a goal and a depth frame can arrive first, and the
+// plan made from them must be recorded with the episode the status then names, not with "unknown" (-1).
+TEST_F(PlanCollectorTest, APlanMadeBeforeTheEpisodeIsKnownIsWrittenWithThatEpisode) {
+  std::vector<std::string> warnings;
+  PlanCollector c(COLLECTOR_CONFIG_PATH, dir_.string(), "", {}, cpp_data_collector::OpenMode::kCreate,
+                  [&](CollectorWarning, const std::string& text) { warnings.push_back(text); });
+  KnownPlan p;
+  c.Start(p.depth->intrinsics);
+  c.SetMapUpdateMs(0.25);
+  c.OnPlan(p.record);
+  EXPECT_EQ(c.held(), 1u);
+  EXPECT_EQ(c.not_recorded(), 0u);
+  ASSERT_EQ(warnings.size(), 1u);
+  EXPECT_NE(warnings[0].find("held until the episode is known"), std::string::npos) << warnings[0];
+  p.result.traj_id = 8;  // a later plan of the same frame (the held record must not follow the observer's)
+  c.SetMapUpdateMs(0.5);
+  c.SetEpisode(1, 77);
+  EXPECT_EQ(c.held(), 0u);
+  c.OnPlan(p.record);
+  const PlanCollector::Finalized f = c.Finalize();
+  ASSERT_TRUE(f.ok) << f.text;
+  EXPECT_NE(f.text.find("written 2"), std::string::npos) << f.text;
+
+  const cpp_data_collector::DatasetReader reader(dir_.string());
+  ASSERT_EQ(reader.num_records(), 2u);
+  const cpp_data_collector::DecodedRecord held = reader.shards().at(0).Decode(0);
+  const cpp_data_collector::DecodedRecord later = reader.shards().at(0).Decode(1);
+  EXPECT_EQ(held.head.episode_id, 1);
+  EXPECT_EQ(held.head.world_seed, 77u);
+  EXPECT_EQ(held.head.bspline_traj_id, 7);
+  EXPECT_EQ(held.head.t_map_update_ms, 0.25);  // the context of when it was made
+  const std::vector<float> depth = held.DepthMetres();
+  ASSERT_EQ(depth.size(), 12u);
+  EXPECT_NEAR(depth[11], 12.0f, 0.01f);
+  EXPECT_EQ(later.head.episode_id, 1);
+  EXPECT_EQ(later.head.bspline_traj_id, 8);
+  EXPECT_EQ(later.head.t_map_update_ms, 0.5);
+}
+
+// Without any episode (no simulator publishing sim/status) nothing unkeyed is written: a bounded number of
+// plans is held, the rest counted as not recorded, and Finalize says why none of them was written.
+TEST_F(PlanCollectorTest, PlansWhoseEpisodeIsNeverKnownAreNotWrittenAndSaySo) {
+  std::vector<std::string> warnings;
+  PlanCollector c(COLLECTOR_CONFIG_PATH, dir_.string(), "", {}, cpp_data_collector::OpenMode::kCreate,
+                  [&](CollectorWarning, const std::string& text) { warnings.push_back(text); });
+  const KnownPlan p;
+  c.Start(p.depth->intrinsics);
+  for (size_t i = 0; i < PlanCollector::kMaxHeldPlans + 3; ++i) c.OnPlan(p.record);
+  EXPECT_EQ(c.held(), PlanCollector::kMaxHeldPlans);
+  EXPECT_EQ(c.not_recorded(), 3u);
+  EXPECT_NE(warnings.back().find("no episode yet"), std::string::npos) << warnings.back();
+  const PlanCollector::Finalized f = c.Finalize();
+  ASSERT_TRUE(f.ok) << f.text;
+  EXPECT_NE(f.text.find(std::to_string(PlanCollector::kMaxHeldPlans) +
+                        " plan(s) not recorded: the episode was never known"),
+            std::string::npos)
+      << f.text;
+  EXPECT_EQ(c.not_recorded(), PlanCollector::kMaxHeldPlans + 3);
+  EXPECT_EQ(cpp_data_collector::DatasetReader(dir_.string()).num_records(), 0u);
+}
+
 TEST_F(PlanCollectorTest, ADirectoryHoldingADatasetIsRefusedAtOnce) {
   {
     PlanCollector c(COLLECTOR_CONFIG_PATH, dir_.string(), "", {}, cpp_data_collector::OpenMode::kCreate,

@@ -42,6 +42,7 @@ void FillPlanRecord(const PlanRecord& plan, const RecordContext& ctx, cpp_data_c
 enum class CollectorWarning {
   kNotRecorded,   // a successful plan that could not be recorded (no camera_info yet, no depth, no odometry)
   kRecordFailed,  // the writer refused or dropped the record
+  kHeld,          // a plan made before the episode was known, held until it is (SetEpisode)
 };
 
 class PlanCollector : public PlanObserver {
@@ -61,10 +62,12 @@ class PlanCollector : public PlanObserver {
   // to log. Later calls do nothing and return "". Throws if the writer cannot start.
   std::string Start(const quad_core::CameraIntrinsics& k);
 
-  void SetEpisode(int64_t episode_id, uint64_t world_seed) {
-    context_.episode_id = episode_id;
-    context_.world_seed = world_seed;
-  }
+  // The episode of the plans from now on. A plan made before the first episode is known (the node's depth
+  // frame or goal can arrive before sim/status: they come on other connections) is held, and written with
+  // this episode when it is set; at most kMaxHeldPlans are held, later ones are counted as not recorded.
+  void SetEpisode(int64_t episode_id, uint64_t world_seed);
+  static constexpr size_t kMaxHeldPlans = 32;
+  size_t held() const { return held_.size(); }
   void SetMapUpdateMs(double ms) { context_.map_update_ms = ms; }
 
   void OnPlan(const PlanRecord& plan) override;
@@ -99,6 +102,12 @@ class PlanCollector : public PlanObserver {
   std::unique_ptr<cpp_data_collector::DatasetWriter> writer_;
   cpp_data_collector::PlanRecord record_;  // reused: its B-spline vectors keep their capacity
   RecordContext context_;
+  // Plans made before the first episode was known: the record (its depth pointing into `depth`'s pixels).
+  struct HeldPlan {
+    cpp_data_collector::PlanRecord record;
+    std::shared_ptr<const DepthFrame> depth;
+  };
+  std::vector<HeldPlan> held_;
   uint64_t not_recorded_ = 0;
   std::vector<double> record_us_;
 };

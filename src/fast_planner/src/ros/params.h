@@ -83,7 +83,9 @@ inline std::shared_ptr<PlanCollector> MakeCollector(const ros::NodeHandle& pnh, 
       config, out_dir, commit, ReadRunInfo(pnh),
       append ? cpp_data_collector::OpenMode::kAppend : cpp_data_collector::OpenMode::kCreate,
       [log_throttle_s](CollectorWarning kind, const std::string& text) {  // one throttle per kind
-        if (kind == CollectorWarning::kNotRecorded) {
+        if (kind == CollectorWarning::kHeld) {
+          ROS_INFO_THROTTLE(log_throttle_s, "fast_planner: %s", text.c_str());
+        } else if (kind == CollectorWarning::kNotRecorded) {
           ROS_WARN_THROTTLE(log_throttle_s, "fast_planner: %s", text.c_str());
         } else {
           ROS_WARN_THROTTLE(log_throttle_s, "fast_planner: %s", text.c_str());

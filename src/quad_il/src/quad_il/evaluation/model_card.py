@@ -95,7 +95,11 @@ def lineage(run: Path) -> list[Path]:
         if not init:
             return chain[::-1]
         ckpt = Path(init)
-        if unfrozen_origin(ckpt) is not None:
+        parent_is_run = ckpt.parent.name == "checkpoints" and all(
+            (ckpt.parent.parent / f).is_file() for f in RUN_FILES
+        )
+        # Only a checkpoint outside a finished run is read (torch.load costs seconds per ancestor).
+        if not parent_is_run and unfrozen_origin(ckpt) is not None:
             return chain[::-1]  # started from a shipped policy file: its card tells the rest
         if ckpt.parent.name != "checkpoints":
             raise ModelCardError(
