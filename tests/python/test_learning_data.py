@@ -11,6 +11,7 @@ import torch
 from quad_il.learning.dataset import (
     BatchLoader,
     DatasetError,
+    episode_hash_fraction,
     episode_keys,
     load_dataset,
     prepare_arrays,
@@ -176,6 +177,52 @@ def test_split_is_by_episode_seeded_and_covers_every_sample() -> None:
     assert np.array_equal(again.val_idx, split.val_idx)
     others = {tuple(split_by_episode(ws, ep, 0.1, seed=s).val_episodes) for s in range(10)}
     assert len(others) > 1
+
+
+def _keys(num_worlds: int, first_seed: int = 1000) -> tuple[np.ndarray, np.ndarray]:
+    """Two samples of each of `num_worlds` episodes (world seeds from `first_seed`, episode id 1)."""
+    ws = np.repeat(np.arange(first_seed, first_seed + num_worlds, dtype=np.uint64), 2)
+    return ws, np.ones(len(ws), dtype=np.int64)
+
+
+def test_hashed_split_keeps_every_episode_on_its_side_when_datasets_are_added() -> None:
+    ws, ep = _keys(300)
+    more_ws, more_ep = _keys(500, first_seed=5000)  # the next round's dataset
+    before = split_by_episode(ws, ep, 0.1, seed=3, method="hashed")
+    after = split_by_episode(
+        np.concatenate([ws, more_ws]), np.concatenate([ep, more_ep]), 0.1, seed=3, method="hashed"
+    )
+    assert set(before.val_episodes) <= set(after.val_episodes)
+    assert set(before.train_episodes) <= set(after.train_episodes)
+    assert not set(after.train_episodes) & set(after.val_episodes)
+    assert sorted(np.concatenate([after.train_idx, after.val_idx]).tolist()) == list(range(1600))
+    # The permuted split (the default) moves episodes between the sides when data is added.
+    p_before = split_by_episode(ws, ep, 0.1, seed=3)
+    p_after = split_by_episode(np.concatenate([ws, more_ws]), np.concatenate([ep, more_ep]), 0.1, seed=3)
+    assert set(p_before.val_episodes) & set(p_after.train_episodes)
+
+
+def test_hashed_split_is_seeded_and_holds_the_fraction_on_average() -> None:
+    ws, ep = _keys(4000)
+    split = split_by_episode(ws, ep, 0.1, seed=0, method="hashed")
+    assert 0.085 < len(split.val_episodes) / 4000 < 0.115
+    assert split.val_episodes == split_by_episode(ws, ep, 0.1, seed=0, method="hashed").val_episodes
+    assert split.val_episodes != split_by_episode(ws, ep, 0.1, seed=1, method="hashed").val_episodes
+    assert episode_hash_fraction((1000, 1), 0) == episode_hash_fraction((1000, 1), 0)
+    assert 0.0 <= episode_hash_fraction((1000, 1), 0) < 1.0
+
+
+def test_hashed_split_keeps_an_episode_on_each_side() -> None:
+    ws, ep = _keys(2)
+    for fraction in (0.001, 0.999):
+        split = split_by_episode(ws, ep, fraction, seed=0, method="hashed")
+        assert len(split.val_episodes) == 1 and len(split.train_episodes) == 1
+
+
+def test_an_unknown_split_method_is_refused_naming_it() -> None:
+    ws, ep = _keys(4)
+    with pytest.raises(ValueError, match="split method 'random': one of permuted, hashed"):
+        split_by_episode(ws, ep, 0.1, seed=0, method="random")
 
 
 def test_same_episode_id_in_different_worlds_are_different_episodes() -> None:

@@ -88,6 +88,8 @@ def test_config_override_errors_name_key_and_value() -> None:
         load_config([], ["optim.lr=-0.1"])
     with pytest.raises(ConfigError, match=r"'scheduler.name'.*\(got 'linear'\)"):
         load_config([], ["scheduler.name=linear"])
+    with pytest.raises(ConfigError, match=r"'data.split'.*'permuted' or 'hashed'.*\(got 'random'\)"):
+        load_config([], ["data.split=random"])
     with pytest.raises(ConfigError, match=r"'optim.batchsize': Extra inputs"):
         load_config([], ["optim.batchsize=4"])
     with pytest.raises(ConfigError, match="must look like key.subkey=value"):

@@ -47,6 +47,9 @@ class DataConfig(_Strict):
     paths: list[str] = Field(default_factory=list)
     val_fraction: float = Field(0.1, gt=0.0, lt=1.0)
     train_episode_fraction: float = Field(1.0, gt=0.0, le=1.0)
+    # permuted: a seeded permutation of all episodes (moves episodes between the sides when data is added);
+    # hashed: each episode's side from its own hash (stable across DAgger rounds). dataset.split_by_episode.
+    split: Literal["permuted", "hashed"] = "permuted"
     num_workers: int = Field(1, ge=0, le=16)
     # Share of training samples seen in a mirror each epoch (preprocessing.mirror_about_heading: the depth
     # image flipped left to right, state, goal and plan reflected about the heading plane); 0 = off. Which

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import collections
 import concurrent.futures
+import hashlib
 import math
 import zipfile
 from collections.abc import Iterator, Mapping, Sequence
@@ -515,31 +516,57 @@ def episode_keys(
     return [(int(a), int(np.int64(b))) for a, b in unique], inverse.reshape(-1)
 
 
+SPLIT_METHODS = ("permuted", "hashed")
+
+
+def episode_hash_fraction(key: tuple[int, int], seed: int) -> float:
+    """A uniform number in [0, 1) that depends only on the episode (world_seed, episode_id) and `seed`."""
+    digest = hashlib.blake2b(f"{seed}:{key[0]}:{key[1]}".encode(), digest_size=8).digest()
+    return int.from_bytes(digest, "little") / 2.0**64
+
+
 def split_by_episode(
     world_seed: NDArray[Any],
     episode_id: NDArray[Any],
     val_fraction: float,
     seed: int,
     train_episode_fraction: float = 1.0,
+    method: str = "permuted",
 ) -> Split:
-    """Seeded split of whole episodes: round(E * val_fraction) (at least 1) episodes to validation.
+    """Seeded split of whole episodes into training and validation.
 
-    An episode is a (world_seed, episode_id) pair, so no episode has samples on both sides. The permutation
-    depends only on `seed` and the set of episodes. `train_episode_fraction` < 1 keeps a seeded subset of the
-    training episodes (for dataset-size experiments; the validation set stays the same).
+    An episode is a (world_seed, episode_id) pair, so no episode has samples on both sides.
+    - `permuted`: round(E * val_fraction) (at least 1) episodes to validation by a permutation that depends on
+      `seed` and the set of episodes, so adding a dataset moves episodes between the sides.
+    - `hashed`: an episode is in validation when its hash with `seed` (episode_hash_fraction) is below
+      `val_fraction`, so its side never depends on the other episodes: a DAgger round that adds datasets
+      keeps every earlier episode where it was, and a warm-started network is validated on episodes it never
+      trained on. The validation share is then val_fraction on average; at least one episode is on each side.
+    `train_episode_fraction` < 1 keeps a seeded subset of the training episodes (for dataset-size experiments;
+    the validation set stays the same).
     """
     if not 0.0 < val_fraction < 1.0:
         raise ValueError(f"val_fraction must be in (0, 1), got {val_fraction}")
     if not 0.0 < train_episode_fraction <= 1.0:
         raise ValueError(f"train_episode_fraction must be in (0, 1], got {train_episode_fraction}")
+    if method not in SPLIT_METHODS:
+        raise ValueError(f"split method '{method}': one of {', '.join(SPLIT_METHODS)}")
     keys, inverse = episode_keys(world_seed, episode_id)
     num_ep = len(keys)
     if num_ep < 2:
         raise DatasetError(f"need at least 2 episodes to split into training and validation, got {num_ep}")
-    n_val = min(num_ep - 1, max(1, round(num_ep * val_fraction)))
-    order = np.random.default_rng([seed, 0x5EED]).permutation(num_ep)
-    val_ep = np.sort(order[:n_val])
-    train_order = order[n_val:]
+    rng = np.random.default_rng([seed, 0x5EED])
+    if method == "hashed":
+        u = np.array([episode_hash_fraction(k, seed) for k in keys])
+        by_u = np.argsort(u, kind="stable")
+        n_val = min(num_ep - 1, max(1, int(np.count_nonzero(u < val_fraction))))
+        val_ep = np.sort(by_u[:n_val])
+        train_order = rng.permutation(by_u[n_val:])
+    else:
+        n_val = min(num_ep - 1, max(1, round(num_ep * val_fraction)))
+        order = rng.permutation(num_ep)
+        val_ep = np.sort(order[:n_val])
+        train_order = order[n_val:]
     n_train = max(1, math.ceil(len(train_order) * train_episode_fraction))
     train_ep = np.sort(train_order[:n_train])
     unused_ep = np.sort(train_order[n_train:])

@@ -268,6 +268,7 @@ class Trainer:
             cfg.data.val_fraction,
             cfg.run.seed,
             cfg.data.train_episode_fraction,
+            cfg.data.split,
         )
         self.partition = torch.from_numpy(
             self.data.partition
