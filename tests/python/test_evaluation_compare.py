@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -67,6 +68,21 @@ def test_main_prints_and_writes_the_markdown_summary(
     assert "| A | 0 | 0 | 4 |" in text and "| B | 2 | 1 | 1 |" in text
     assert "Goals gained in B: 2; lost: 0; exact McNemar p = 0.5." in text
     assert "| 3 | 9003 | timeout | collision |" in text
+
+
+def test_main_prints_json_for_scripts(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    a = _run(tmp_path / "a", ["timeout"] * 4, [0] * 4)
+    b = _run(tmp_path / "b", ["goal_reached", "goal_reached", "timeout", "collision"], [0] * 4)
+    out = tmp_path / "cmp.json"
+    assert main([str(a), str(b), "--json", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert text == out.read_text()
+    obj = json.loads(text)
+    assert obj["counts_a"] == {"goal_reached": 0, "collision": 0, "timeout": 4}
+    assert obj["counts_b"] == {"goal_reached": 2, "collision": 1, "timeout": 1}
+    assert (obj["goals_gained"], obj["goals_lost"], obj["mcnemar_p"]) == (2, 0, 0.5)
+    assert obj["changed"][2] == {"index": 3, "seed": 9003, "a": "timeout", "b": "collision"}
+    assert obj["episodes"] == 4 and obj["run_b"] == str(b)
 
 
 def test_runs_flown_on_different_cpus_are_flagged(tmp_path: Path) -> None:

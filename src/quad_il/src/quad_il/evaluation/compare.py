@@ -16,6 +16,8 @@ file is missing or incomplete.
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -144,13 +146,27 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--controller", default="cpp", choices=("expert", "py", "cpp"), help="controller compared"
     )
-    ap.add_argument("--out", default="", help="also write the summary to this Markdown file")
+    ap.add_argument(
+        "--out", default="", help="also write the summary to this file (Markdown, or JSON with --json)"
+    )
+    ap.add_argument(
+        "--json",
+        action="store_true",
+        help="print the comparison as one JSON object (counts, gained, lost, McNemar p, changed episodes, "
+        "CPUs) for scripts, instead of Markdown",
+    )
     args = ap.parse_args(argv)
     try:
-        text = markdown(compare(args.run_a, args.run_b, args.controller), args.run_a, args.run_b)
+        c = compare(args.run_a, args.run_b, args.controller)
     except (CompareError, ValueError, OSError) as e:
         print(f"compare: {e}", file=sys.stderr)
         return 2
+    if args.json:
+        obj = {"run_a": args.run_a, "run_b": args.run_b, **dataclasses.asdict(c)}
+        obj["changed"] = [dict(zip(("index", "seed", "a", "b"), ch, strict=True)) for ch in c.changed]
+        text = json.dumps(obj, indent=1) + "\n"
+    else:
+        text = markdown(c, args.run_a, args.run_b)
     print(text, end="")
     if args.out:
         Path(args.out).write_text(text)
