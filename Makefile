@@ -2,7 +2,7 @@
 #   make demo    the main job end to end on the default configuration
 #   make test    the whole test suite (lint, gtest, rostest, pytest) with a summary line
 #   make build   idempotent set-up (apt, .venv, pip) + catkin build
-#   make eval [POLICY=runs/x/policy.ts (default: the shipped models/quad_il_policy/policy.ts)] [SET=dev|dev_dense|test|test_dense | SEEDS=9000-9019 EPISODES=20 DENSITY=]
+#   make eval [POLICY=runs/x/policy.ts (default: the shipped models/quad_il_policy/policy.ts)] [SET=dev|dev_dense|dev_wide|test|test_dense | SEEDS=9000-9019 EPISODES=20 DENSITY=]
 #             [TIER=bare|safety|shield] [CONTROLLERS=expert,cpp] [EVAL_OUT=results/eval]
 #             [POLICY_CONFIG=config/policy.yaml] [FORCE_NEW=1] [BACKEND=engine|ros]
 #                closed-loop evaluation of the expert and the policy on held-out worlds (docs/inference.md), in

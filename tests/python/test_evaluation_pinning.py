@@ -79,12 +79,14 @@ def test_the_tier_cli_writes_a_config_both_nodes_load(tmp_path: Path) -> None:
 
 def test_the_shipped_sets_separate_development_from_test() -> None:
     sets = load_eval_sets(ROOT / "config" / "eval_sets.yaml")
-    assert {"dev", "dev_dense", "test", "test_dense"} <= set(sets)
+    assert {"dev", "dev_dense", "dev_wide", "test", "test_dense"} <= set(sets)
     dev, test = set(sets["dev"].seed_list()), set(sets["test"].seed_list())
     assert not dev & test
     assert sets["test"].episodes >= 100 and sets["test_dense"].episodes >= 100
     # Every world seed flown by an earlier evaluation (docs/RESULTS.md: 9000-9239) is outside the test set.
     assert not set(range(9000, 9240)) & test
+    wide = set(sets["dev_wide"].seed_list())
+    assert sets["dev_wide"].episodes == 300 and len(wide) == 300 and not wide & (test | dev)
     sim = yaml.safe_load((ROOT / "config" / "sim.yaml").read_text())
     assert world_density(sets["test"], sim) is None
     assert world_density(sets["test_dense"], sim) == pytest.approx(1.5 * 200 / 16.0)  # 200 boxes in 40 x 40 m
@@ -105,7 +107,7 @@ def test_a_sets_file_with_a_test_set_overlapping_development_is_refused(tmp_path
     with pytest.raises(EvalSetError, match="sets.dev.colour: Extra inputs are not permitted"):
         load_eval_sets(p)
     with pytest.raises(
-        EvalSetError, match="no evaluation set 'tset' \\(sets: dev, dev_dense, test, test_dense\\)"
+        EvalSetError, match="no evaluation set 'tset' \\(sets: dev, dev_dense, dev_wide, test, test_dense\\)"
     ):
         get_eval_set(ROOT / "config" / "eval_sets.yaml", "tset")
 

@@ -332,7 +332,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--set",
         default="",
-        help="an evaluation set of --sets-file (dev, dev_dense, test, test_dense): seeds, episodes, density",
+        help="an evaluation set of --sets-file (dev, dev_dense, dev_wide, test, test_dense): seeds, "
+        "episodes, density",
     )
     ap.add_argument(
         "--sets-file", default=str(DEFAULT_SETS), help="the evaluation sets (config/eval_sets.yaml)"
