@@ -54,6 +54,7 @@ TEST(ExpertSession, LabellerPlansFromThePairedOdometryAndRecordsIt) {
                                                    cpp_data_collector::OpenMode::kCreate, nullptr);
   s.SetCollector(collector);
   collector->Start(Frame(0)->intrinsics);
+  collector->SetEpisode(3, 77);  // as the node does from sim/status (a plan before it would be held)
   for (int i = 890; i <= 899; ++i) {
     const ReplannerOutput out = s.OnOdometry(Hover(i));
     EXPECT_TRUE(out.transitions.empty() && !out.trajectory);  // the labeller never flies
@@ -90,6 +91,8 @@ TEST(ExpertSession, LabellerPlansFromThePairedOdometryAndRecordsIt) {
   EXPECT_EQ(d.head.sim_time_s, frame->stamp_s);
   EXPECT_EQ(d.head.t_map_update_ms, out.map_update.total_ms);  // this frame's map update
   EXPECT_EQ(d.head.bspline_traj_id, out.label->traj_id);
+  EXPECT_EQ(d.head.episode_id, 3);
+  EXPECT_EQ(d.head.world_seed, 77u);
   fs::remove_all(dir);
 }
 
